@@ -1,0 +1,1 @@
+"""Computation for GaussVDB: plain numpy/numba, never bpy, testable without Blender."""

@@ -1,0 +1,13 @@
+"""Blender operators. Thin: each one calls a plain function that scripts and the CLI call too."""
+
+from . import import_vdb
+
+CLASSES = (*import_vdb.CLASSES,)
+
+
+def register_extra():
+    import_vdb.register_extra()
+
+
+def unregister_extra():
+    import_vdb.unregister_extra()
