@@ -1,0 +1,12 @@
+"""Exact, fast OpenVDB (.vdb) ingest: leaves, masks, tiles and transforms of every grid.
+
+    from kernels.vdb import read_vdb
+    f = read_vdb("smoke.vdb")          # VDBFile: .version, .grids (GridData), .skipped
+"""
+
+from .errors import VDBFormatError
+from .griddata import GridData, VDBFile
+from .reader import DEFAULT_MAX_BYTES, estimate_bytes, read_topology, read_vdb
+
+__all__ = ["read_vdb", "read_topology", "estimate_bytes", "VDBFormatError", "GridData", "VDBFile",
+           "DEFAULT_MAX_BYTES"]

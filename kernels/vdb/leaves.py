@@ -1,0 +1,265 @@
+"""Leaf buffers: one compiled scan finds every leaf's chunk, then decompress and scatter in bulk.
+
+The scan and the scatter are plain Python written for numba; without numba they still run (slowly).
+"""
+
+import numpy as np
+
+from .codec import COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC, COMPRESS_ZIP, HALF_LUT, decompress
+
+try:
+    from blosc.blosc_extension import decompress_ptr as blosc_ptr
+except ImportError:  # pragma: no cover
+    blosc_ptr = None
+
+try:
+    from numba import njit
+except ImportError:  # pragma: no cover - numba is optional at run time
+    def njit(*args, **kwargs):
+        return (lambda f: f) if not args or not callable(args[0]) else args[0]
+
+# scan status codes
+_OK, _TRUNC, _MASK, _CODE, _RAWSIZE, _BLOSCHDR = 0, 1, 2, 3, 4, 5
+_MESSAGES = {
+    _TRUNC: "truncated leaf buffer",
+    _MASK: "leaf buffer mask differs from the topology mask",
+    _CODE: "unknown leaf metadata code",
+    _RAWSIZE: "raw leaf chunk has the wrong size",
+    _BLOSCHDR: "blosc leaf chunk header disagrees with the leaf size",
+}
+
+
+@njit(cache=True, nogil=True)
+def _scan(buf, pos, end, masks, popc, mask_comp, compressed, half, stored_size, full_size,
+          codes, off0, off1, seloff, chunk_off, chunk_len, counts):
+    """Walk the leaf buffers; fill per-leaf arrays. Returns (status, offset, leaf index)."""
+    n = masks.shape[0]
+    for i in range(n):
+        if pos + 65 > end:
+            return _TRUNC, pos, i
+        for k in range(64):
+            if buf[pos + k] != masks[i, k]:
+                return _MASK, pos + k, i
+        pos += 64
+        code = buf[pos]
+        if code > 6:
+            return _CODE, pos, i
+        codes[i] = code
+        pos += 1
+        off0[i] = -1
+        off1[i] = -1
+        seloff[i] = -1
+        if code == 2 or code == 4 or code == 5:
+            off0[i] = pos
+            pos += full_size
+            if code == 5:
+                off1[i] = pos
+                pos += full_size
+        if code >= 3 and code <= 5:
+            seloff[i] = pos
+            pos += 64
+        if pos > end:
+            return _TRUNC, pos, i
+        cnt = popc[i] if (mask_comp and code != 6) else 512
+        counts[i] = cnt
+        nbytes = cnt * stored_size
+        chunk_off[i] = pos
+        if half and cnt < 1:
+            chunk_len[i] = 0
+            continue
+        if compressed:
+            if pos + 8 > end:
+                return _TRUNC, pos, i
+            size = np.int64(0)
+            for k in range(8):
+                size |= np.int64(buf[pos + k]) << (8 * k)
+            pos += 8
+            chunk_off[i] = pos
+            if size <= 0:
+                if -size != nbytes:
+                    return _RAWSIZE, pos - 8, i
+                chunk_len[i] = size
+                pos += nbytes
+            else:
+                if size > end - pos:
+                    return _TRUNC, pos - 8, i
+                if compressed == 2:  # blosc: header nbytes and cbytes must match before C sees it
+                    if size < 16:
+                        return _BLOSCHDR, pos, i
+                    nb = np.int64(0)
+                    cb = np.int64(0)
+                    for k in range(4):
+                        nb |= np.int64(buf[pos + 4 + k]) << (8 * k)
+                        cb |= np.int64(buf[pos + 12 + k]) << (8 * k)
+                    if nb != nbytes or cb != size:
+                        return _BLOSCHDR, pos, i
+                chunk_len[i] = size
+                pos += size
+        else:
+            chunk_len[i] = -nbytes
+            pos += nbytes
+        if pos > end:
+            return _TRUNC, pos, i
+    return _OK, pos, n
+
+
+@njit(cache=True, nogil=True)
+def _copy_raw(buf, chunk_off, chunk_len, pool, starts):
+    for i in range(chunk_off.shape[0]):
+        if chunk_len[i] < 0:
+            s = starts[i]
+            o = chunk_off[i]
+            for k in range(-chunk_len[i]):
+                pool[s + k] = buf[o + k]
+
+
+@njit(cache=True, nogil=True)
+def _scatter(data, starts, masks, compact, val0, val1, sel, out):
+    """out[i, slot] = next stored value for stored slots, else the inactive value the code picks.
+
+    Branch-free per slot; ``data`` carries one padding row so the look-ahead read stays in bounds.
+    """
+    n = masks.shape[0]
+    nc = data.shape[1]
+    for i in range(n):
+        s = starts[i]
+        if not compact[i]:
+            for slot in range(512):
+                for c in range(nc):
+                    out[i, slot, c] = data[s + slot, c]
+            continue
+        for byte in range(64):
+            m = masks[i, byte]
+            q = sel[i, byte]
+            for bit in range(8):
+                slot = byte * 8 + bit
+                take = (m >> bit) & 1
+                pick = (q >> bit) & 1
+                for c in range(nc):
+                    inact = val1[i, c] if pick else val0[i, c]
+                    out[i, slot, c] = data[s, c] if take else inact
+                s += take
+
+
+@njit(cache=True, nogil=True)
+def _scatter1(data, starts, masks, compact, val0, val1, sel, out):
+    """Scalar grids: the same as _scatter on 1-D data and (N, 512) output (lets LLVM do better)."""
+    for i in range(masks.shape[0]):
+        s = starts[i]
+        if not compact[i]:
+            out[i, :] = data[s:s + 512]
+            continue
+        v0 = val0[i, 0]
+        v1 = val1[i, 0]
+        for byte in range(64):
+            m = masks[i, byte]
+            q = sel[i, byte]
+            for bit in range(8):
+                take = (m >> bit) & 1
+                inact = v1 if (q >> bit) & 1 else v0
+                out[i, byte * 8 + bit] = data[s] if take else inact
+                s += take
+
+
+@njit(cache=True, nogil=True)
+def _popcount(masks):
+    out = np.zeros(masks.shape[0], np.int64)
+    for i in range(masks.shape[0]):
+        c = 0
+        for k in range(masks.shape[1]):
+            b = masks[i, k]
+            while b:
+                b &= b - 1
+                c += 1
+        out[i] = c
+    return out
+
+
+def popcount_rows(masks_u8):
+    """Active voxels of each leaf, from its 64 mask bytes."""
+    return _popcount(np.ascontiguousarray(masks_u8))
+
+
+def scan_leaves(cur, masks, flags, et):
+    """Walk the leaf buffers from cur.pos (bounded by cur.end); returns the per-leaf table."""
+    n = len(masks)
+    popc = popcount_rows(masks)
+    t = {
+        "codes": np.zeros(n, np.uint8), "off0": np.zeros(n, np.int64), "off1": np.zeros(n, np.int64),
+        "seloff": np.zeros(n, np.int64), "chunk_off": np.zeros(n, np.int64),
+        "chunk_len": np.zeros(n, np.int64), "counts": np.zeros(n, np.int64), "popc": popc,
+    }
+    compressed = 2 if flags & COMPRESS_BLOSC else (1 if flags & COMPRESS_ZIP else 0)
+    status, pos, i = _scan(cur.arr, cur.pos, cur.end, masks, popc, bool(flags & COMPRESS_ACTIVE_MASK),
+                           compressed, et.half, et.stored_size, et.full_size, t["codes"], t["off0"],
+                           t["off1"], t["seloff"], t["chunk_off"], t["chunk_len"], t["counts"])
+    if status != _OK:
+        raise cur.error(f"{_MESSAGES[status]} (leaf {i} of {n})", int(pos))
+    cur.pos = int(pos)
+    return t
+
+
+def _decompress_all(cur, t, counts, pool, byte_starts, flags, et):
+    idx = np.nonzero(t["chunk_len"] > 0)[0]
+    if not len(idx):
+        return
+    offs = t["chunk_off"][idx].tolist()
+    lens = t["chunk_len"][idx].tolist()
+    dsts = byte_starts[idx].tolist()
+    if flags & COMPRESS_BLOSC and blosc_ptr is not None:
+        # The scan checked each header (nbytes fits the slot, cbytes = chunk length); blosc itself
+        # refuses a frame whose cbytes disagrees with the buffer it is given.
+        mv = memoryview(cur.buf)
+        base = pool.ctypes.data
+        try:
+            for o, n, d in zip(offs, lens, dsts):
+                blosc_ptr(mv[o:o + n], base + d)
+        except Exception as e:  # blosc_extension.error on a corrupt frame
+            raise cur.error(f"corrupt blosc chunk: {e}", o) from None
+        finally:
+            mv.release()
+        return
+    for i, o, n, d in zip(idx.tolist(), offs, lens, dsts):
+        nb = int(counts[i]) * et.stored_size
+        pool[d:d + nb] = np.frombuffer(decompress(cur, o, n, nb, flags), np.uint8)
+
+
+def decode_leaves(cur, masks, t, flags, et, background):
+    """Decompress every leaf chunk and scatter into (N, 512, ncomp) float32."""
+    n = len(masks)
+    counts = t["counts"]
+    starts = np.zeros(n + 1, np.int64)
+    np.cumsum(counts, out=starts[1:])
+    total = int(starts[-1])
+    pool = np.empty((total + 1) * et.stored_size, np.uint8)  # + 1 padding value, see _scatter
+    pool[total * et.stored_size:] = 0
+    byte_starts = starts[:-1] * et.stored_size
+    _copy_raw(cur.arr, t["chunk_off"], t["chunk_len"], pool, byte_starts)
+    _decompress_all(cur, t, counts, pool, byte_starts, flags, et)
+    if et.half:
+        data = HALF_LUT[pool.view("<u2")]
+    elif et.full == np.float32:
+        data = pool.view("<f4")
+    else:
+        data = pool.view(et.full).astype(np.float32)
+    data = data.reshape(-1, et.ncomp)
+    bg = np.asarray(background, np.float64).reshape(et.ncomp)
+    codes = t["codes"]
+    val0 = np.where((codes == 0)[:, None], bg, -bg).astype(np.float32)
+    val1 = np.broadcast_to(bg.astype(np.float32), (n, et.ncomp)).copy()
+    for off, dst in ((t["off0"], val0), (t["off1"], val1)):
+        idx = np.nonzero(off >= 0)[0]
+        if len(idx):
+            raw = cur.arr[off[idx, None] + np.arange(et.full_size)]
+            dst[idx] = raw.copy().view(et.full).reshape(len(idx), et.ncomp).astype(np.float32)
+    sel = np.zeros((n, 64), np.uint8)
+    idx = np.nonzero(t["seloff"] >= 0)[0]
+    if len(idx):
+        sel[idx] = cur.arr[t["seloff"][idx, None] + np.arange(64)]
+    compact = counts != 512
+    out = np.empty((n, 512, et.ncomp), np.float32)
+    if et.ncomp == 1:
+        _scatter1(data[:, 0], starts, masks, compact, val0, val1, sel, out[:, :, 0])
+    else:
+        _scatter(data, starts, masks, compact, val0, val1, sel, out)
+    return out

@@ -1,0 +1,360 @@
+"""Orchestration: header, grid descriptors, then each grid's metadata, transform, topology, leaves."""
+
+import mmap
+import os
+import re
+import warnings
+
+import numpy as np
+
+from . import codec
+from .codec import ElementType, compression_text
+from .errors import VDBFormatError
+from .griddata import GridData, VDBFile
+from .leaves import decode_leaves, popcount_rows, scan_leaves
+from .metadata import read_metamap
+from .stream import Cursor
+from .transform import read_transform
+from .tree import read_tree_topology
+
+MAGIC = 0x56444220
+NATIVE_MIN_VERSION = 222   # node-mask compression era; older files go to the binding fallback
+MAX_KNOWN_VERSION = 225
+DEFAULT_MAX_BYTES = int(os.environ.get("GAUSSVDB_MAX_BYTES", 16 << 30))
+_SEP = "\x1e"
+_CLASSES = {"fog volume": "fog_volume", "level set": "level_set", "staggered": "staggered"}
+_TYPE_RE = re.compile(r"^Tree_(\w+?)_5_4_3$")
+_SKIP_REASONS = {
+    "int32": "integer grid: no continuous values to turn into Gaussians",
+    "int64": "integer grid: no continuous values to turn into Gaussians",
+    "bool": "bool grid: no continuous values to turn into Gaussians",
+    "mask": "mask grid: topology only, no values",
+    "vec3i": "integer vector grid: not supported",
+    "ptdataidx32": "point data grid: holds points, not a volume",
+    "ptdataidx64": "point data grid: holds points, not a volume",
+    "string": "string grid: not supported",
+}
+
+
+class _Unsupported(Exception):
+    """A grid the native reader will not read (reason in args[0]); skipped or sent to the fallback."""
+
+
+def _load(path):
+    p = os.fspath(path)
+    if not os.path.exists(p):
+        raise VDBFormatError("no such file", p)
+    if os.path.isdir(p):
+        raise VDBFormatError("is a directory, not a .vdb file", p)
+    try:
+        with open(p, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size == 0:
+                raise VDBFormatError("empty file", p, offset=0)
+            return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    except OSError as e:
+        raise VDBFormatError(f"cannot open: {e.strerror}", p) from None
+
+
+def _header(cur):
+    magic = cur.i64("magic number")
+    if magic & 0xFFFFFFFF != MAGIC:
+        raise cur.error("not a VDB file (bad magic number)", 0)
+    version = cur.u32("file version")
+    if version < 211 or version > 1000:
+        raise cur.error(f"unsupported file format version {version}", 8)
+    lib = (cur.u32("library major"), cur.u32("library minor"))
+    has_offsets = cur.u8("grid offsets flag") != 0
+    if 220 <= version < 222:
+        cur.u8("file compression flag")
+    cur.skip(36, "uuid")
+    meta = read_metamap(cur, "file metadata")
+    at = cur.pos
+    count = cur.i32("grid count")
+    if count < 0 or count * 12 > cur.remaining():
+        raise cur.error(f"absurd grid count {count}", at)
+    return version, lib, has_offsets, meta, count
+
+
+def _descriptor(cur, version):
+    at = cur.pos
+    unique = cur.string("grid name", limit=1 << 16)
+    cur.grid = unique.split(_SEP)[0]
+    tname = cur.string("grid type", limit=1 << 10)
+    parent = cur.string("instance parent", limit=1 << 16) if version >= 216 else ""
+    pos = [cur.i64("grid offset") for _ in range(3)]
+    return {"unique": unique, "name": unique.split(_SEP)[0], "type": tname, "parent": parent,
+            "grid_pos": pos[0], "block_pos": pos[1], "end_pos": pos[2], "at": at}
+
+
+def _value_type(tname):
+    base = tname[:-len("_HalfFloat")] if tname.endswith("_HalfFloat") else tname
+    m = _TYPE_RE.match(base)
+    if not m:
+        raise _Unsupported(f"tree type {tname!r}: only standard 5-4-3 trees are read")
+    vt = m.group(1)
+    if vt not in codec.VALUE_TYPES:
+        raise _Unsupported(_SKIP_REASONS.get(vt, f"value type {vt!r} is not supported"))
+    return vt
+
+
+def _bbox(origins, masks_u8, tile_origins, tile_sizes, tile_active):
+    lo = np.full(3, np.iinfo(np.int64).max, np.int64)
+    hi = np.full(3, np.iinfo(np.int64).min, np.int64)
+    if len(origins):
+        words = masks_u8.view("<u8").reshape(-1, 8)   # word index = local x, byte = y, bit = z
+        keep = words.any(axis=1)
+        if keep.any():
+            words, o = words[keep], origins[keep].astype(np.int64)
+            orw = np.bitwise_or.reduce(words, axis=1)
+            ybytes = orw.view(np.uint8).reshape(-1, 8)
+            zbyte = np.bitwise_or.reduce(ybytes, axis=1)
+            occ = (words != 0, ybytes != 0,
+                   np.unpackbits(zbyte[:, None], axis=1, bitorder="little").astype(bool))
+            for axis in range(3):
+                first = occ[axis].argmax(axis=1)
+                last = 7 - occ[axis][:, ::-1].argmax(axis=1)
+                lo[axis] = (o[:, axis] + first).min()
+                hi[axis] = (o[:, axis] + last).max()
+    if tile_active.any():
+        to = tile_origins[tile_active].astype(np.int64)
+        ts = tile_sizes[tile_active].astype(np.int64)[:, None]
+        lo = np.minimum(lo, to.min(axis=0))
+        hi = np.maximum(hi, (to + ts - 1).max(axis=0))
+    if lo[0] > hi[0]:
+        return np.zeros(3, np.int64), np.full(3, -1, np.int64)
+    return lo, hi
+
+
+def estimate_grid_bytes(n_leaves, value_type, half=False):
+    """Peak bytes a full read of one grid allocates, from its leaf count (topology only)."""
+    comp, ncomp = codec.VALUE_TYPES.get(value_type, ("<f4", 1))
+    stored = (2 if half else np.dtype(comp).itemsize) * ncomp
+    per_leaf = 512 * (stored + 4 * ncomp + 4 * ncomp + (4 if ncomp > 1 else 0)) + 64 + 12 + 80
+    return int(n_leaves) * per_leaf
+
+
+class _Reader:
+    def __init__(self, path, topology_only, max_bytes):
+        self.path = os.fspath(path)
+        self.topology_only = topology_only
+        self.max_bytes = DEFAULT_MAX_BYTES if max_bytes is None else int(max_bytes)
+        self.used_bytes = 0
+        self.trees = {}  # unique name -> decoded tree (shared by instances)
+
+    def grid(self, cur, d, version, wanted_tree=True):
+        """Parse one grid body at cur.pos (bounded by cur.end). Returns GridData or None (instance
+        parent only) and leaves cur at the end of the grid."""
+        name = d["display"]
+        start = cur.pos
+        flags = cur.u32("compression flags")
+        if flags & ~7:
+            raise cur.error(f"unknown compression flags {flags:#x}", start)
+        meta = read_metamap(cur, "grid metadata")
+        half = bool(meta.get("is_saved_as_half_float", False))
+        xform, map_kind = read_transform(cur)
+        vt = d["value_type"]
+        et = ElementType(vt, half)
+        if d["parent"]:
+            tree = self.trees.get(d["parent"])
+            if tree is None:
+                raise cur.error(f"instance of grid {d['parent']!r}, which was not read before it", start)
+        else:
+            tree = self.tree(cur, flags, et, name, d)
+        topo, values, vectors = tree
+        lo, hi = _bbox(topo.leaf_origins, topo.leaf_masks, topo.tile_origins, topo.tile_sizes,
+                       topo.tile_active)
+        leaf_count = int(popcount_rows(topo.leaf_masks).sum())
+        tile_count = int(np.sum(topo.tile_sizes[topo.tile_active].astype(np.int64) ** 3))
+        active = leaf_count + tile_count
+        expected = meta.get("file_voxel_count")
+        if isinstance(expected, int) and expected != active:
+            raise cur.error(f"active voxel count {active} differs from the file's "
+                            f"file_voxel_count {expected}", start)
+        bgv = topo.background.astype(np.float64)
+        mag = lambda a: np.sqrt((a.astype(np.float64) ** 2).sum(axis=-1)) if a.shape[-1] > 1 else a[..., 0]
+        self.info[name] = {"map": map_kind, "metadata": meta, "byte_range": (start, cur.end),
+                           "unique_name": d["unique"], "instance_of": d["parent"] or None,
+                           "leaf_count": len(topo.leaf_origins)}
+        return GridData(
+            name=name,
+            grid_class=_CLASSES.get(str(meta.get("class", "")).lower(), "unknown"),
+            value_type=vt, background=float(mag(bgv[None])[0]), file_version=version,
+            compression=compression_text(flags), half=half, index_to_world=xform,
+            leaf_origins=topo.leaf_origins, leaf_masks=topo.leaf_masks.view("<u8").reshape(-1, 8),
+            leaf_values=values, tile_origins=topo.tile_origins,
+            tile_sizes=topo.tile_sizes, tile_values=mag(topo.tile_values).astype(np.float32),
+            tile_active=topo.tile_active, active_voxels=active, bbox_min=lo, bbox_max=hi,
+            leaf_vectors=vectors)
+
+    def tree(self, cur, flags, et, name, d):
+        topo = read_tree_topology(cur, flags, et)
+        values = vectors = None
+        need_scan = not self.topology_only or not self.has_offsets
+        if need_scan:
+            table = scan_leaves(cur, topo.leaf_masks, flags, et)
+            if self.has_offsets and cur.pos != cur.end:
+                raise cur.error(f"grid ends at byte {cur.pos}, its descriptor says {cur.end}")
+        if not self.topology_only:
+            need = estimate_grid_bytes(len(topo.leaf_origins), d["value_type"], et.half)
+            if self.used_bytes + need > self.max_bytes:
+                raise VDBFormatError(
+                    f"reading needs about {(self.used_bytes + need) / 2**20:.1f} MiB, above the "
+                    f"limit of {self.max_bytes / 2**20:.1f} MiB (raise max_bytes to read it)",
+                    self.path, name, topo.start)
+            self.used_bytes += need
+            out = decode_leaves(cur, topo.leaf_masks, table, flags, et, topo.background)
+            if et.ncomp == 1:
+                values = out.reshape(-1, 512)
+            else:
+                vectors = out
+                values = np.sqrt(np.einsum("nsc,nsc->ns", out, out))
+        elif self.has_offsets:
+            cur.pos = cur.end
+        tree = (topo, values, vectors)
+        self.trees[d["unique"]] = tree
+        return tree
+
+    def read(self, grids, allow_fallback):
+        buf = _load(self.path)
+        try:
+            return self._read(buf, grids, allow_fallback)
+        finally:
+            try:
+                buf.close()
+            except BufferError:  # a view is still alive somewhere; the GC closes it later
+                pass
+
+    def _read(self, buf, grids, allow_fallback):
+        cur = Cursor(buf, self.path)
+        version, lib, self.has_offsets, fmeta, count = _header(cur)
+        result = VDBFile(self.path, version, lib, metadata=fmeta)
+        self.info = result.grid_info
+        if version < NATIVE_MIN_VERSION:
+            return self._fallback(result, grids, allow_fallback,
+                                  f"file format version {version} predates 222")
+        wanted = None if grids is None else ([grids] if isinstance(grids, str) else list(grids))
+        descs = []
+        seen = {}
+        for _ in range(count):
+            d = _descriptor(cur, version)
+            k = seen.get(d["name"], 0)
+            seen[d["name"]] = k + 1
+            d["display"] = d["name"] if k == 0 else f"{d['name']}[{k}]"
+            if self.has_offsets:
+                if not (0 < d["grid_pos"] <= d["end_pos"] <= len(buf)):
+                    raise cur.error(f"grid offsets {d['grid_pos']}..{d['end_pos']} lie outside the "
+                                    f"file of {len(buf)} bytes", d["at"])
+                cur.pos = d["end_pos"]
+            else:
+                self._stream_grid(cur, d, version, result, wanted)
+                if d.get("stop"):
+                    break
+            descs.append(d)
+        if self.has_offsets:
+            self._offset_grids(buf, descs, version, result, wanted)
+        self._check_wanted(wanted, descs, result)
+        return result
+
+    def _selected(self, d, wanted):
+        return wanted is None or d["name"] in wanted or d["display"] in wanted or d["unique"] in wanted
+
+    def _offset_grids(self, buf, descs, version, result, wanted):
+        by_unique = {d["unique"]: d for d in descs}
+        needed = set()
+        for d in descs:
+            if self._selected(d, wanted):
+                needed.add(d["unique"])
+                p = d["parent"]
+                while p and p in by_unique and p not in needed:  # instances need their parent's tree
+                    needed.add(p)
+                    p = by_unique[p]["parent"]
+        for d in descs:
+            if d["unique"] not in needed:
+                continue
+            cur = Cursor(buf, self.path, d["grid_pos"], d["end_pos"], d["name"], arr=None)
+            self._one(cur, d, version, result, wanted)
+
+    def _stream_grid(self, cur, d, version, result, wanted):
+        # Without offsets every grid body follows its descriptor: parse it to find the next one.
+        cur.grid = d["name"]
+        self._one(cur, d, version, result, wanted)
+        if d.get("skipped_unreadable"):
+            d["stop"] = True
+
+    def _one(self, cur, d, version, result, wanted):
+        selected = self._selected(d, wanted)
+        try:
+            d["value_type"] = _value_type(d["type"])
+            if d["parent"] and d["parent"] not in self.trees:
+                raise _Unsupported(f"instance of {d['parent']!r}, which could not be read")
+            if codec.blosc is None:
+                raise _Unsupported("the blosc module is not installed")
+            g = self.grid(cur, d, version)
+        except _Unsupported as e:
+            reason = str(e.args[0])
+            if wanted is not None and selected:
+                raise VDBFormatError(f"grid cannot be read: {reason}", self.path, d["display"],
+                                     cur.pos) from None
+            if not self.has_offsets:
+                reason += "; the file has no grid offsets, so the grids after it are not listed"
+                d["skipped_unreadable"] = True
+            if selected:
+                result.skipped.append((d["display"], reason))
+            return
+        except VDBFormatError as e:
+            if "NonlinearFrustumMap" in e.reason and not (wanted is not None and selected) \
+                    and self.has_offsets:
+                result.skipped.append((d["display"], e.reason))
+                return
+            raise
+        if selected:
+            result.grids.append(g)
+
+    def _check_wanted(self, wanted, descs, result):
+        if wanted is None:
+            return
+        names = {n for d in descs for n in (d["name"], d["display"], d["unique"])}
+        for w in wanted:
+            if w not in names:
+                listed = ", ".join(repr(d["display"]) for d in descs) or "none"
+                raise VDBFormatError(f"no grid named {w!r} (grids: {listed})", self.path, w, None)
+
+    def _fallback(self, result, grids, allow_fallback, why):
+        if not allow_fallback:
+            raise VDBFormatError(f"{why}; the native reader cannot read it (fallback disabled)",
+                                 self.path, None, 8)
+        from .fallback import read_with_binding
+        warnings.warn(f"{self.path}: {why}; reading through the openvdb binding (slow)",
+                      stacklevel=3)
+        return read_with_binding(self.path, result, grids, self.topology_only, self.max_bytes)
+
+
+def read_vdb(path, grids=None, *, topology_only=False, max_bytes=None, allow_fallback=True):
+    """Read the grids of a .vdb file (all, or those named in ``grids``) into GridData.
+
+    Raises VDBFormatError (file, grid and byte offset in the message) on anything it cannot read.
+    """
+    try:
+        return _Reader(path, topology_only, max_bytes).read(grids, allow_fallback)
+    except VDBFormatError:
+        raise
+    except (MemoryError, OverflowError, ValueError, IndexError, KeyError, TypeError,
+            UnicodeError, struct_error()) as e:  # last line of defence: never a raw traceback
+        raise VDBFormatError(f"malformed file: {type(e).__name__}: {e}", path) from e
+
+
+def struct_error():
+    import struct
+    return struct.error
+
+
+def read_topology(path, grids=None, **kw):
+    """Origins, masks, tiles, transforms and counts without decompressing leaf values."""
+    return read_vdb(path, grids, topology_only=True, **kw)
+
+
+def estimate_bytes(path_or_file, grids=None):
+    """Bytes a full read would allocate, from the topology alone."""
+    f = path_or_file if isinstance(path_or_file, VDBFile) else read_topology(path_or_file, grids)
+    return sum(estimate_grid_bytes(len(g.leaf_origins), g.value_type, g.half) for g in f.grids)

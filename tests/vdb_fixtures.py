@@ -1,0 +1,323 @@
+"""Fixture writer (through the openvdb binding) and a small transcoder for .vdb test files.
+
+Other tests reuse ``write_grid``:
+
+    from tests.vdb_fixtures import write_grid
+    write_grid(tmp_path / "cube.vdb", np.ones((16, 16, 16), np.float32), voxel_size=0.1)
+
+``transcode`` rewrites a file with other compression / active-mask / half settings, or as a stream
+without grid offsets; tests check that the binding reads every variant back identically.
+"""
+
+import struct
+import zlib
+
+import numpy as np
+
+from kernels.vdb import codec
+from kernels.vdb.metadata import read_metamap
+from kernels.vdb.stream import Cursor
+from kernels.vdb.transform import read_transform
+
+
+def openvdb():
+    import bpy
+
+    bpy.utils.expose_bundled_modules()
+    import openvdb as ov
+    return ov
+
+
+def write_grid(path, values_dense=None, *, name="density", origin=(0, 0, 0), background=0.0,
+               voxel_size=1.0, grid_class="fog volume", half=False, matrix=None, tolerance=0.0):
+    """Write one float grid: ``values_dense`` (x, y, z) placed at index ``origin``; voxels equal to
+    the background (within ``tolerance``) stay inactive. Returns the path."""
+    ov = openvdb()
+    g = ov.FloatGrid()
+    g.background = float(background)
+    if values_dense is not None:
+        g.copyFromArray(np.ascontiguousarray(values_dense, np.float32), ijk=tuple(int(c) for c in origin),
+                        tolerance=tolerance)
+    g.name = name
+    g.gridClass = {"fog volume": ov.GridClass.FOG_VOLUME, "level set": ov.GridClass.LEVEL_SET}.get(
+        grid_class, ov.GridClass.UNKNOWN)
+    g.transform = ov.createLinearTransform(np.asarray(matrix, float).T.tolist()) if matrix is not None \
+        else ov.createLinearTransform(voxelSize=float(voxel_size))
+    g.saveFloatAsHalf = bool(half)
+    ov.write(str(path), grids=[g])
+    return path
+
+
+# ---- transcoder -------------------------------------------------------------------------------
+
+def _pack_string(s):
+    b = s.encode() if isinstance(s, str) else s
+    return struct.pack("<I", len(b)) + b
+
+
+def _metamap_bytes(meta_raw):
+    out = [struct.pack("<I", len(meta_raw))]
+    for name, tname, raw in meta_raw:
+        out += [_pack_string(name), _pack_string(tname), struct.pack("<I", len(raw)), raw]
+    return b"".join(out)
+
+
+def _raw_metamap(cur):
+    count = cur.u32()
+    entries = []
+    for _ in range(count):
+        name = cur.string()
+        tname = cur.string()
+        size = cur.u32()
+        entries.append((name, tname, bytes(cur.bytes(size))))
+    return entries
+
+
+class _Enc:
+    def __init__(self, flags, half, et_in, et_out):
+        self.flags, self.half, self.et_in, self.et_out = flags, half, et_in, et_out
+
+    def chunk(self, arr_bytes, count, itemsize):
+        """readData's framing for ``count`` values already converted to bytes."""
+        if self.half and count < 1:
+            return b""
+        if self.flags & codec.COMPRESS_BLOSC:
+            import blosc
+            c = blosc.compress(arr_bytes, typesize=itemsize, cname="lz4")
+            return struct.pack("<q", len(c)) + c
+        if self.flags & codec.COMPRESS_ZIP:
+            if not arr_bytes:
+                return struct.pack("<q", 0)
+            c = zlib.compress(arr_bytes)
+            if len(c) >= len(arr_bytes):  # store raw with a negative size, as OpenVDB may
+                return struct.pack("<q", -len(arr_bytes)) + arr_bytes
+            return struct.pack("<q", len(c)) + c
+        return arr_bytes
+
+    def values(self, values, active, bg):
+        """Inverse of codec.read_node_values (writeCompressedValues)."""
+        et = self.et_out
+        full = et.full
+        vals = np.ascontiguousarray(values, full).reshape(len(active), et.ncomp)
+        bgv = np.asarray(bg, full).reshape(1, et.ncomp)
+        u = np.dtype(f"<u{full.itemsize}")
+        uv = vals.view(u)
+        ub, unb = bgv.view(u)[0], (-bgv).view(u)[0]
+        code, v0, v1, sel = 6, None, None, None
+        if self.flags & codec.COMPRESS_ACTIVE_MASK:
+            d = np.unique(uv[~active], axis=0)  # distinct inactive values, bitwise
+            same = lambda row: np.all(uv == row, axis=1) & ~active
+            isb = lambda row: np.array_equal(row, ub)
+            isnb = lambda row: np.array_equal(row, unb)
+            if len(d) == 0 or (len(d) == 1 and isb(d[0])):
+                code = 0
+            elif len(d) == 1 and isnb(d[0]):
+                code = 1
+            elif len(d) == 1:
+                code, v0 = 2, d[0].view(full)
+            elif len(d) == 2:
+                if {d[0].tobytes(), d[1].tobytes()} == {ub.tobytes(), unb.tobytes()}:
+                    code, sel = 3, same(ub)
+                elif isb(d[0]) or isb(d[1]):
+                    other = d[1] if isb(d[0]) else d[0]
+                    code, v0, sel = 4, other.view(full), same(ub)
+                else:
+                    code, v0, v1, sel = 5, d[0].view(full), d[1].view(full), same(d[1])
+        out = [bytes([code])]
+        if v0 is not None:
+            out.append(np.asarray(v0, full).tobytes())
+        if v1 is not None:
+            out.append(np.asarray(v1, full).tobytes())
+        if sel is not None:
+            out.append(np.packbits(sel, bitorder="little").tobytes())
+        stored = vals[active] if (self.flags & codec.COMPRESS_ACTIVE_MASK and code != 6) else vals
+        sdt = np.dtype("<f2") if self.half else full
+        raw = stored.astype(sdt).tobytes()
+        out.append(self.chunk(raw, len(stored), sdt.itemsize))
+        return b"".join(out)
+
+
+def _tree(cur, enc, flags_in):
+    """Re-encode Tree topology + buffers; returns the bytes."""
+    out = []
+    et = enc.et_in
+    out.append(struct.pack("<i", cur.i32()))
+    bg = cur.array(et.full, et.ncomp).copy()
+    out.append(bg.tobytes())
+    nt, nc = cur.u32(), cur.u32()
+    out.append(struct.pack("<II", nt, nc))
+    tile_size = 12 + et.full_size + 1
+    out.append(bytes(cur.bytes(nt * tile_size)))
+    leaf_masks = []
+
+    def internal(log2):
+        n = 1 << (3 * log2)
+        cm = cur.array(np.uint8, n // 8).copy()
+        vm = cur.array(np.uint8, n // 8).copy()
+        active = np.unpackbits(vm, bitorder="little").astype(bool)
+        vals = codec.read_node_values(cur, n, active, flags_in, et, bg)
+        out.extend([cm.tobytes(), vm.tobytes(), enc.values(vals, active, bg)])
+        kids = int(np.unpackbits(cm).sum())
+        if log2 == 4:
+            for _ in range(kids):
+                m = cur.array(np.uint8, 64).copy()
+                leaf_masks.append(m)
+                out.append(m.tobytes())
+        else:
+            for _ in range(kids):
+                internal(4)
+
+    for _ in range(nc):
+        out.append(bytes(cur.bytes(12)))
+        internal(5)
+    topo = b"".join(out)
+    out = []
+    for m in leaf_masks:
+        assert bytes(cur.bytes(64)) == m.tobytes()
+        active = np.unpackbits(m, bitorder="little").astype(bool)
+        vals = codec.read_node_values(cur, 512, active, flags_in, et, bg)
+        out.extend([m.tobytes(), enc.values(vals, active, bg)])
+    return topo, b"".join(out)
+
+
+def transcode(src, dst, *, compression="blosc", active_mask=True, half=None, offsets=True):
+    """Rewrite ``src`` (any v>=222 file) with ``compression`` in {"blosc", "zip", "none"}, the
+    active-mask flag, half floats (None keeps each grid's setting) and with or without grid offsets."""
+    data = open(src, "rb").read()
+    cur = Cursor(data, str(src))
+    head_start = cur.pos
+    cur.i64()
+    version = cur.u32()
+    assert version >= 222
+    cur.skip(8)
+    off_flag_pos = cur.pos
+    cur.u8()
+    cur.skip(36)
+    read_metamap(cur)
+    count = cur.i32()
+    header = bytearray(data[head_start:cur.pos])
+    header[off_flag_pos] = 1 if offsets else 0
+    flags = {"blosc": codec.COMPRESS_BLOSC, "zip": codec.COMPRESS_ZIP, "none": 0}[compression]
+    flags |= codec.COMPRESS_ACTIVE_MASK if active_mask else 0
+    out = bytearray(header)
+    for _ in range(count):
+        unique, tname, parent = cur.string(), cur.string(), cur.string()
+        gpos, _bpos, epos = cur.i64(), cur.i64(), cur.i64()
+        desc_end = cur.pos
+        g = Cursor(data, str(src), gpos, epos)
+        flags_in = g.u32()
+        meta = _raw_metamap(g)
+        was_half = any(n == "is_saved_as_half_float" and r == b"\x01" for n, _, r in meta)
+        h = was_half if half is None else half
+        vt = tname.replace("_HalfFloat", "").split("_")[1]
+        meta = [e for e in meta if e[0] != "is_saved_as_half_float"]
+        if vt in codec.VALUE_TYPES:
+            meta.append(("is_saved_as_half_float", "bool", b"\x01" if h else b"\x00"))
+        xs = g.pos
+        read_transform(g)
+        xform = data[xs:g.pos]
+        body = struct.pack("<I", flags if vt in codec.VALUE_TYPES else flags_in)
+        body += _metamap_bytes(meta) + xform
+        block = len(body)
+        if not parent:
+            if vt in codec.VALUE_TYPES:
+                enc = _Enc(flags, h, codec.ElementType(vt, was_half), codec.ElementType(vt, h))
+                g.grid = unique
+                topo, bufs = _tree(g, enc, flags_in)
+                block = len(body) + len(topo)
+                body += topo + bufs
+                assert g.pos == epos, (g.pos, epos)
+            else:
+                body = data[gpos:epos]  # other value types: copied untouched
+                block = _bpos - gpos
+        base = tname.replace("_HalfFloat", "")
+        tname_out = base + ("_HalfFloat" if h and vt in codec.VALUE_TYPES else "")
+        desc = _pack_string(unique) + _pack_string(tname_out) + _pack_string(parent)
+        gstart = len(out) + len(desc) + 24
+        if offsets:
+            desc += struct.pack("<qqq", gstart, gstart + block, gstart + len(body))
+        else:
+            desc += struct.pack("<qqq", 0, 0, 0)
+        out += desc + body
+        cur.pos = epos  # source files have grid offsets: the next descriptor follows this grid
+    open(dst, "wb").write(bytes(out))
+    return dst
+
+
+# ---- oracle fixture --------------------------------------------------------------------------
+
+def build_oracle_file(path):
+    """Many grids exercising every feature the reader claims; written by the binding."""
+    ov = openvdb()
+    g = ov.FloatGrid()
+    g.background = 2.0
+    g.name = "codes"
+    g.gridClass = ov.GridClass.FOG_VOLUME
+    a = g.getAccessor()
+    rng = np.random.default_rng(7)
+
+    def leaf(org, inactive_vals, nan=False):
+        for n in range(512):
+            ijk = (org[0] + n // 64, org[1] + (n // 8) % 8, org[2] + n % 8)
+            if n % 3 == 0:
+                a.setValueOn(ijk, float(rng.normal()))
+            else:
+                a.setValueOff(ijk, float(inactive_vals[n % len(inactive_vals)]))
+        if nan:
+            a.setValueOn(org, float("nan"))
+            a.setValueOn((org[0], org[1], org[2] + 1), float("inf"))
+            a.setValueOn((org[0], org[1], org[2] + 2), float("-inf"))
+
+    leaf((0, 0, 0), [2.0], nan=True)             # code 0
+    leaf((8, 0, 0), [-2.0])                      # code 1
+    leaf((16, 0, 0), [5.0])                      # code 2
+    leaf((24, 0, 0), [2.0, -2.0])                # code 3
+    leaf((32, 0, 0), [2.0, 7.0])                 # code 4
+    leaf((40, 0, 0), [7.0, 9.0])                 # code 5
+    leaf((48, 0, 0), [7.0, 9.0, 11.0, 13.0])     # code 6
+    leaf((-8, -16, -24), [2.0])                  # negative coordinates
+    leaf((-4096 - 8, 5000 - 5000 % 8, -130 - 6), [-2.0])  # far corner, another root child
+    for k in range(8):                            # a fully active leaf
+        for j in range(8):
+            for i in range(8):
+                a.setValueOn((200 + i, 200 + j, 200 + k), float(i + j + k))
+    g.fill((64, 64, 64), (71, 71, 71), 3.0, True)          # level-1 tile, 8^3, active
+    g.fill((72, 64, 64), (79, 71, 71), -2.0, False)        # level-1 tile, inactive, -bg
+    g.fill((256, 0, 0), (383, 127, 127), 4.0, True)        # level-2 tile, 128^3
+    g.fill((384, 0, 0), (511, 127, 127), 6.5, False)       # inactive level-2 tile, other value
+    g.fill((8192, 0, 0), (12287, 4095, 4095), 1.5, True)   # root tile, 4096^3, active
+    g.fill((-8192, 0, 0), (-4097, 4095, 4095), 9.0, False)  # root tile, inactive
+    m = np.array([[0.0, -0.5, 0.0, 1.0], [0.5, 0.0, 0.0, -2.0], [0.0, 0.0, 0.25, 3.5],
+                  [0.0, 0.0, 0.0, 1.0]])  # column-vector: rotation + anisotropic scale + shift
+    g.transform = ov.createLinearTransform(m.T.tolist())
+
+    s = ov.createLevelSetSphere(radius=3.0, center=(-1.0, 0.5, 2.0), voxelSize=0.1,
+                                          halfWidth=3.0)
+    s.name = "sphere"
+    d = ov.DoubleGrid()
+    d.background = -1.0
+    d.name = "dbl"
+    d.copyFromArray(rng.normal(size=(20, 9, 5)), ijk=(-3, 4, 100))
+    d.transform = ov.createLinearTransform(np.diag([1.0, 2.0, 3.0, 1.0]).tolist())
+    d.transform.postTranslate((1.0, 2.0, 3.0))
+    v = ov.Vec3SGrid()
+    v.name = "vel"
+    v.copyFromArray(rng.normal(size=(12, 10, 9, 3)).astype(np.float32), ijk=(5, -7, 3))
+    v.transform = ov.createLinearTransform(voxelSize=1.0)
+    v.transform.postTranslate((0.5, -1.0, 2.0))
+    inst = g.copy()
+    inst.name = "codes_inst"
+    dup = ov.FloatGrid()
+    dup.name = "sphere"
+    dup.copyFromArray(np.ones((9, 9, 9), np.float32))
+    ids = ov.Int32Grid()
+    ids.name = "ids"
+    ids.copyFromArray(np.arange(27, dtype=np.int32).reshape(3, 3, 3) + 1)
+    flags = ov.BoolGrid()
+    flags.name = "flags"
+    flags.copyFromArray(np.ones((4, 4, 4), bool))
+    half = s.deepCopy()
+    half.name = "sphere_half"
+    half.saveFloatAsHalf = True
+    ov.write(str(path), grids=[g, inst, s, d, v, dup, ids, flags, half])
+    return path

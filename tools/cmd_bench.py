@@ -1,0 +1,27 @@
+"""`./gaussvdb bench [NAME] [ARGS]`: run benchmarks/bench_NAME.py (default: the error-vs-time report)."""
+
+import importlib.util
+import os
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+BENCH_DIR = os.path.join(ROOT, "benchmarks")
+
+
+def available() -> list[str]:
+    return sorted(f[len("bench_"):-3] for f in os.listdir(BENCH_DIR)
+                  if f.startswith("bench_") and f.endswith(".py"))
+
+
+def main(argv: list[str]) -> int:
+    name = "report"
+    if argv and not argv[0].startswith("-"):
+        name, argv = argv[0], argv[1:]
+    if name not in available():
+        print(f"gaussvdb bench: no benchmark {name!r}; have: {', '.join(available())}", file=sys.stderr)
+        return 2
+    path = os.path.join(BENCH_DIR, f"bench_{name}.py")
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return int(module.main(argv) or 0)
