@@ -1,0 +1,95 @@
+"""Properties over random sparse grids: counts, exact single coverage, mass, thread independence,
+encoding round trip."""
+import numba
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from kernels.lod import PRESETS, build_lod, decode_compact, encode_compact, field_error
+from kernels.lod.build import effective_masks
+from kernels.lod.synthetic import bits_from_masks, random_sparse_grid
+
+NON_OVERLAPPING = PRESETS  # every scheme here is a partition of the (kept) active voxels
+
+
+def active_points(grid):
+    masks, _ = effective_masks(grid)
+    bits = bits_from_masks(masks)
+    li, n = np.nonzero(bits)
+    loc = np.stack([n >> 6, (n >> 3) & 7, n & 7], 1)
+    return grid.leaf_origins[li].astype(np.int64) + loc
+
+
+def boxes(gs):
+    """Voxel boxes from field-weight sigmas (sigma = 0.6 x edge)."""
+    ext = np.rint(gs.sigmas.astype(np.float64) / 0.6).astype(np.int64)
+    c = gs.centers()
+    lo = np.rint(c - (ext - 1) / 2).astype(np.int64)
+    return lo, lo + ext - 1, ext
+
+
+grids = st.builds(random_sparse_grid, seed=st.integers(0, 10_000), n_leaves=st.integers(1, 6),
+                  density=st.floats(0.05, 0.9), grid_class=st.sampled_from(["fog_volume", "level_set"]))
+
+
+@settings(max_examples=12, deadline=None)
+@given(grid=grids)
+def test_partition_of_active_voxels(grid):
+    pts = active_points(grid)
+    for p in NON_OVERLAPPING:
+        gs = build_lod(grid, p, "field")
+        assert gs.count <= len(pts)
+        assert int(gs.voxels.sum()) == len(pts)
+        lo, hi, ext = boxes(gs)
+        inside = np.all((pts[:, None, :] >= lo[None]) & (pts[:, None, :] <= hi[None]), axis=2)
+        cover = inside.sum(1)
+        assert np.all(cover == 1), p  # every kept active voxel in exactly one Gaussian's box
+        # a Gaussian's box holds exactly its voxels
+        np.testing.assert_array_equal(inside.sum(0), gs.voxels)
+        assert np.all(gs.voxels <= ext.prod(1))
+        # group structure: non-empty groups, leaf groups sorted by origin
+        assert np.all(np.diff(gs.group_start) > 0)
+        o = gs.group_origins[:gs.n_leaf_groups]
+        assert np.all(np.lexsort(o.T[::-1]) == np.arange(len(o)))
+
+
+@settings(max_examples=8, deadline=None)
+@given(grid=grids, weights=st.sampled_from(["field", "paper"]))
+def test_encoding_round_trip(grid, weights):
+    for p in PRESETS:
+        gs = build_lod(grid, p, weights)
+        dec = decode_compact(encode_compact(gs))
+        for f in ("group_origins", "group_start", "offsets", "sigmas", "amplitudes", "voxels"):
+            np.testing.assert_array_equal(getattr(dec, f), getattr(gs, f), err_msg=f)
+        rng = gs.params["value_max"] - gs.params["value_min"]
+        np.testing.assert_allclose(dec.values, gs.values, rtol=0, atol=1e-3 * rng + 1e-12)
+        assert dec.grid_class == gs.grid_class and dec.lod == p and dec.weights == weights
+
+
+def _all_arrays(gs):
+    return [gs.group_origins, gs.group_start, gs.offsets, gs.sigmas, gs.values, gs.amplitudes,
+            gs.voxels]
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
+def test_identical_for_1_and_2_threads():
+    grid = random_sparse_grid(7, n_leaves=40, span=4, density=0.6)
+    ls = random_sparse_grid(8, n_leaves=20, span=3, grid_class="level_set")
+    old = numba.get_num_threads()
+    res = {}
+    try:
+        for nt in (1, 2):
+            numba.set_num_threads(nt)
+            out = []
+            for g in (grid, ls):
+                for p in PRESETS:
+                    gs = build_lod(g, p, "field")
+                    out.append((_all_arrays(gs), field_error(g, gs)))
+            res[nt] = out
+    finally:
+        numba.set_num_threads(old)
+    for (a1, e1), (a2, e2) in zip(res[1], res[2]):
+        for x, y in zip(a1, a2):
+            np.testing.assert_array_equal(x, y)
+        for k in ("rmse", "nrmse", "max_abs", "points", "pairs"):
+            assert e1[k] == e2[k]
