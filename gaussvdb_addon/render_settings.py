@@ -29,8 +29,15 @@ def _tag(self, context):
 def _colormap_changed(self, context):
     from . import transfer_ramp
 
-    transfer_ramp.fill_from_colormap(self, self.colormap)
+    transfer_ramp.fill_from_colormap(self, self.colormap, self.colormap_alpha.lower())
     self.id_data.update_tag()
+
+
+def _passes_changed(self, context):
+    scene = self.id_data
+    for layer in scene.view_layers:
+        layer.update_render_passes()  # the compositor's Render Layers node shows the new sockets
+    scene.update_tag()
 
 
 class GaussVDBRenderSettings(bpy.types.PropertyGroup):
@@ -41,6 +48,12 @@ class GaussVDBRenderSettings(bpy.types.PropertyGroup):
         default="viridis",
         update=_colormap_changed,
     )
+    colormap_alpha: EnumProperty(
+        name="Alpha", default="RAMP", update=_colormap_changed,
+        description="The opacity a colormap preset writes into the ramp",
+        items=(("RAMP", "Ramp", "Alpha rises linearly from 0 at the low end to 1 at the high end"),
+               ("CONSTANT", "Constant", "Alpha 1 everywhere (density alone sets the opacity)"),
+               ("KEEP", "Keep", "Only the colours change; the ramp's alpha is kept")))
     ramp_texture: PointerProperty(name="Transfer Function", type=bpy.types.Texture)
     auto_range: BoolProperty(name="Auto Range", default=True, update=_tag,
                              description="Value range from the data of the objects rendered")
@@ -60,15 +73,19 @@ class GaussVDBRenderSettings(bpy.types.PropertyGroup):
                          description="CPU threads (0: all)")
     level_set_color: EnumProperty(
         name="Level Set Colour",
-        items=(("HEIGHT", "Height", "Colormap over world Z across the surface's box"),
+        items=(("X", "X", "Colormap over world X across the surface's box"),
+               ("Y", "Y", "Colormap over world Y across the surface's box"),
+               ("Z", "Height (Z)", "Colormap over world Z across the surface's box"),
                ("CONSTANT", "Constant", "One colour")),
-        default="HEIGHT", update=_tag)
+        default="Z", update=_tag)
     level_set_constant: FloatVectorProperty(name="Surface Colour", subtype="COLOR", size=3,
                                             default=(0.8, 0.8, 0.8), min=0.0, max=1.0, update=_tag)
     background: FloatVectorProperty(name="Background", subtype="COLOR", size=3,
                                     default=(0.0, 0.0, 0.0), min=0.0, update=_tag)
-    use_pass_depth: BoolProperty(name="Depth", default=False, update=_tag)
-    use_pass_value: BoolProperty(name="Value", default=False, update=_tag)
+    use_pass_depth: BoolProperty(name="Depth", default=False, update=_passes_changed,
+                                 description="World distance where the opacity reaches 0.5 (1e10: none)")
+    use_pass_value: BoolProperty(name="Value", default=False, update=_passes_changed,
+                                 description="Opacity-weighted mean data value along the ray")
 
 
 CLASSES = (GaussVDBRenderSettings,)

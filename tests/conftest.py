@@ -15,10 +15,12 @@ DATA_DIR = os.path.join(os.path.dirname(ROOT), "shared", "data")
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
 ADDON_MODULE = "bl_ext.user_default.gaussvdb"
 
-# Before any `import bpy`: a temporary user config and extensions folder, so an installed copy of the
+# Before any `import bpy`: our own user config and extensions folder, so an installed copy of the
 # extension (or of its wheels) never shadows the working tree, and the tests never touch the user's.
+# The extensions folder is fixed (not temporary): numba keys its on-disk cache by source path, so a
+# stable path lets later sessions reuse the compiled kernels.
 _TMP = tempfile.mkdtemp(prefix="gaussvdb-tests-")
-os.environ["BLENDER_USER_EXTENSIONS"] = os.path.join(_TMP, "extensions")
+os.environ["BLENDER_USER_EXTENSIONS"] = os.path.join(ROOT, ".pytest_cache", "blender_extensions")
 os.environ["BLENDER_USER_CONFIG"] = os.path.join(_TMP, "config")
 os.environ["BLENDER_USER_SCRIPTS"] = os.path.join(_TMP, "scripts")
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(ROOT, ".pytest_cache", "numba"))

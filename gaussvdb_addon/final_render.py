@@ -1,0 +1,256 @@
+"""F12 / animation renders of the GAUSSVDB engine, and ``render_scene_to_file`` for the CLI and demo.
+
+The image is drawn in bands of rows (sized so one band takes about 0.15 s), with
+``update_progress`` / ``update_result`` after each band and ``test_break`` before each (and polled
+by the device inside a band), so Esc stops a render within half a second. Combined is linear and
+premultiplied, written straight into the pass buffer (row 0 is the bottom row in both). Any error
+is reported with ``report`` and ``error_set``: ``bpy.ops.render.render`` then raises RuntimeError
+with the message and ``blender -b`` exits non-zero.
+"""
+
+import math
+import time
+import traceback
+
+import numpy as np
+
+from ..kernels.render import Camera
+
+TARGET_BAND_SECONDS = 0.15
+LAST_STATS = {}  # figures of the last final render in this process (the CLI prints them)
+_DEVICE = {}  # one CPU device per process: numba kernels compile once, acceleration is reused
+
+
+class RenderCancelled(Exception):
+    pass
+
+
+# -- camera ---------------------------------------------------------------------------------------
+def render_size(scene):
+    r = scene.render
+    f = r.resolution_percentage / 100.0
+    return max(1, int(r.resolution_x * f)), max(1, int(r.resolution_y * f))
+
+
+def camera_from_object(cam_obj, width, height, matrix_world=None):
+    """Kernel Camera for a Blender camera object at an image size (Blender's view-plane rules:
+    sensor fit AUTO spans the larger image side, HORIZONTAL the width, VERTICAL the height;
+    shifts are in units of the fitted side)."""
+    cam = cam_obj.data
+    if cam.type not in ("PERSP", "ORTHO"):
+        raise ValueError(f"camera type {cam.type} is not supported (perspective and orthographic are)")
+    mw = np.array(matrix_world if matrix_world is not None else cam_obj.matrix_world, np.float64)
+    big, small = max(width, height), min(width, height)
+    fit = cam.sensor_fit
+    if fit == "AUTO":
+        fitted = big
+    elif fit == "HORIZONTAL":
+        fitted = width
+    else:
+        fitted = height
+    scale = big / fitted  # fitted-side units -> larger-side units
+    sx, sy = cam.shift_x / scale, cam.shift_y / scale
+    if cam.type == "ORTHO":
+        return Camera(mw, width, height, "ortho", ortho_scale=cam.ortho_scale * scale,
+                      shift_x=sx, shift_y=sy)
+    sensor = cam.sensor_height if fit == "VERTICAL" else cam.sensor_width
+    half = 0.5 * sensor / cam.lens * scale
+    return Camera(mw, width, height, "persp", fov_x=2.0 * math.atan(half), shift_x=sx, shift_y=sy)
+
+
+def scene_camera(scene, depsgraph, width, height):
+    cam = scene.camera
+    if cam is None:
+        raise ValueError("the scene has no camera")
+    ev = cam.evaluated_get(depsgraph) if depsgraph is not None else cam
+    return camera_from_object(ev, width, height)
+
+
+# -- passes ---------------------------------------------------------------------------------------
+def wanted_passes(scene):
+    s = scene.gaussvdb
+    out = []
+    if s.use_pass_depth:
+        out.append(("Depth", 1, "Z", "VALUE"))
+    if s.use_pass_value:
+        out.append(("Value", 1, "X", "VALUE"))
+    return out
+
+
+def register_passes(engine, scene, renderlayer):
+    if scene is None or renderlayer is None:
+        return
+    engine.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
+    for name, ch, chid, kind in wanted_passes(scene):
+        engine.register_pass(scene, renderlayer, name, ch, chid, kind)
+
+
+def new_device():
+    """A CPU device whose numba kernels are cached in the extension's user directory."""
+    from ..kernels.render import get_device as kernel_device
+
+    kw = {}
+    try:
+        import os
+
+        import bpy
+
+        if os.environ.get("NUMBA_CACHE_DIR"):
+            raise LookupError  # the user's (or the test suite's) choice wins
+
+        pkg = __package__.rsplit(".", 1)[0]
+        kw["cache_dir"] = bpy.utils.extension_path_user(pkg, path="numba_cache", create=True)
+    except Exception:  # noqa: BLE001  (not an installed extension, or NUMBA_CACHE_DIR set)
+        pass
+    return kernel_device("CPU", **kw)
+
+
+def get_device():
+    """The process-wide device of final renders (acceleration reused across frames)."""
+    dev = _DEVICE.get("CPU")
+    if dev is None:
+        dev = _DEVICE["CPU"] = new_device()
+    return dev
+
+
+# -- the render -----------------------------------------------------------------------------------
+def render(engine, depsgraph):
+    """RenderEngine.render body. Never raises: errors go to report/error_set."""
+    try:
+        _render(engine, depsgraph)
+    except RenderCancelled:
+        pass
+    except Exception as err:  # noqa: BLE001  (everything must surface, not just known errors)
+        traceback.print_exc()
+        msg = f"GaussVDB: {err}" if str(err) else f"GaussVDB: {type(err).__name__}"
+        LAST_STATS.clear()
+        LAST_STATS["error"] = msg
+        engine.report({"ERROR"}, msg)
+        engine.error_set(msg)
+
+
+def _render(engine, depsgraph):
+    from . import scene_sync
+
+    t0 = time.perf_counter()
+    scene = depsgraph.scene
+    width, height = render_size(scene)
+    camera = scene_camera(scene, depsgraph, width, height)
+    sync = scene_sync.SceneSync(viewport=False)
+    rscene = sync.sync(depsgraph)
+    tf = sync.transfer_function(scene.gaussvdb)
+    device = get_device()
+    engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
+    device.sync(rscene)
+    t_sync = time.perf_counter() - t0
+
+    layer_name = depsgraph.view_layer.name
+    combined = np.zeros((height, width, 4), np.float32)
+    extra = {name: np.full((height, width), 1e10 if name == "Depth" else 0.0, np.float32)
+             for name, *_ in wanted_passes(scene)}
+    result = engine.begin_result(0, 0, width, height, layer=layer_name)
+    layer = result.layers[0]
+    for name, ch, chid, _kind in wanted_passes(scene):
+        if layer.passes.find(name) < 0:
+            engine.end_result(result, cancel=True)
+            engine.add_pass(name, ch, chid, layer=layer_name)
+            result = engine.begin_result(0, 0, width, height, layer=layer_name)
+            layer = result.layers[0]
+
+    def flush():
+        layer.passes["Combined"].rect.foreach_set(combined.reshape(-1))
+        for name, buf in extra.items():
+            p = layer.passes.get(name) if hasattr(layer.passes, "get") else layer.passes[name]
+            if p is not None:
+                p.rect.foreach_set(buf.reshape(-1))
+
+    t1 = time.perf_counter()
+    band = min(height, 8)
+    row = 0
+    cancelled = False
+    last_flush = t1
+    while row < height:
+        if engine.test_break():
+            cancelled = True
+            break
+        r1 = min(height, row + band)
+        tb = time.perf_counter()
+        out = device.render(rscene, camera, tf, rows=(row, r1), cancel=engine.test_break)
+        dt = time.perf_counter() - tb
+        combined[row:r1] = out["Combined"]
+        for name in extra:
+            if name in out:
+                extra[name][row:r1] = out[name]
+        if device.stats.get("cancelled"):
+            cancelled = True
+            break
+        per_row = dt / max(1, r1 - row)
+        band = int(max(1, min(height, TARGET_BAND_SECONDS / max(per_row, 1e-6))))
+        row = r1
+        engine.update_progress(row / height)
+        now = time.perf_counter()
+        if row < height and now - last_flush > 0.5:
+            flush()
+            engine.update_result(result)
+            last_flush = now
+    flush()
+    engine.end_result(result)
+    t_render = time.perf_counter() - t1
+    stats = dict(seconds_sync=t_sync, seconds_render=t_render, width=width, height=height,
+                 mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
+                 threads=device.stats.get("threads"), cancelled=cancelled,
+                 value_range=[tf.vmin, tf.vmax])
+    LAST_STATS.clear()
+    LAST_STATS.update(stats)
+    engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
+                            f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
+
+
+# -- plain entry points (CLI, demo) ----------------------------------------------------------------
+def set_exact_colors(scene):
+    """Standard view transform, no look, exposure 0, gamma 1, no dither: colormaps come out
+    exact in 8-bit files (AgX, the default, maps linear 1.0 to 0.859; the default dither adds
+    +-1 noise to 8-bit output)."""
+    scene.render.dither_intensity = 0.0
+    vs = scene.view_settings
+    scene.display_settings.display_device = "sRGB"
+    vs.view_transform = "Standard"
+    vs.look = "None"
+    vs.exposure = 0.0
+    vs.gamma = 1.0
+    vs.use_curve_mapping = False
+
+
+FORMATS = {".png": "PNG", ".exr": "OPEN_EXR", ".jpg": "JPEG", ".jpeg": "JPEG", ".tif": "TIFF",
+           ".tiff": "TIFF"}
+
+
+def render_scene_to_file(scene, path, *, exact_colors=True, color_depth=None):
+    """Render ``scene`` with the GAUSSVDB engine and write ``path`` (format from the extension).
+    Returns the render's figures (LAST_STATS); raises RuntimeError with the engine's message."""
+    import os
+
+    import bpy
+
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in FORMATS:
+        raise ValueError(f"unsupported image type {ext!r}; use one of {', '.join(sorted(FORMATS))}")
+    scene.render.engine = "GAUSSVDB"
+    img = scene.render.image_settings
+    if hasattr(img, "media_type"):  # Blender 5.0: pick plain images before the file format
+        img.media_type = "IMAGE"
+    img.file_format = FORMATS[ext]
+    img.color_mode = "RGBA" if FORMATS[ext] in ("PNG", "OPEN_EXR", "TIFF") else "RGB"
+    if color_depth:
+        img.color_depth = str(color_depth)
+    elif FORMATS[ext] == "OPEN_EXR":
+        img.color_depth = "32"
+    if exact_colors:
+        set_exact_colors(scene)
+    scene.render.filepath = os.path.abspath(path)
+    scene.render.use_file_extension = False
+    LAST_STATS.clear()
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    if "error" in LAST_STATS:
+        raise RuntimeError(LAST_STATS["error"])
+    return dict(LAST_STATS)

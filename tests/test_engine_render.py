@@ -1,0 +1,112 @@
+"""Final renders through the GAUSSVDB engine: files, colours, errors, cancellation, stats."""
+
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+
+from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, setup_render
+
+W, H = 64, 32
+
+
+def _ramp_scene(bpy, scene):
+    """A level-set slab 64 x 4 x 32 voxels seen along +Y by an orthographic camera whose pixel
+    centres sit on the Gaussian centres: the colour over X is the colormap over X."""
+    make_object(bpy, "Slab", lattice(64, 4, 32), grid_class="level_set")
+    add_camera(bpy, scene, (31.5, -20.0, 15.5), (math.pi / 2, 0.0, 0.0), ortho_scale=64.0)
+    setup_render(scene, W, H)
+    s = scene.gaussvdb
+    s.mode = "PARTICLES"
+    s.level_set_color = "X"
+    s.density = 50.0
+    s.threads = 1
+    scene.render.film_transparent = False
+
+
+def _read_png(bpy, path):
+    img = bpy.data.images.load(path)
+    w, h = img.size
+    px = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(px)
+    bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)
+
+
+def test_ramp_png_matches_colormap_table(bpy_module, scene, tmp_path):
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.kernels.render.colormaps import colormap
+
+    bpy = bpy_module
+    _ramp_scene(bpy, scene)
+    scene.gaussvdb.colormap = "viridis"
+    path = str(tmp_path / "ramp.png")
+    stats = final_render.render_scene_to_file(scene, path)
+    assert os.path.isfile(path)
+    assert stats["gaussians"] == 64 * 4 * 32 and stats["width"] == W
+    px = _read_png(bpy, path)  # 8-bit values / 255, row 0 = bottom
+    tab = colormap("viridis").astype(np.float64)
+    cols = np.arange(4, W - 4)
+    expect = np.stack([np.interp(cols / 63.0 * 255.0, np.arange(256), tab[:, k]) for k in range(3)], 1)
+    got = px[4:H - 4][:, cols, :3]
+    err = np.abs(got - expect[None]).max()
+    assert err <= 1.0 / 255.0 + 1e-6, f"max error {err * 255:.3f}/255"
+
+
+def test_errors_surface_as_runtime_error(bpy_module, scene, tmp_path):
+    bpy = bpy_module
+    _ramp_scene(bpy, scene)
+    scene.gaussvdb.mode = "REFERENCE"  # the slab has no source file
+    scene.render.filepath = str(tmp_path / "x.png")
+    with pytest.raises(RuntimeError, match="source file"):
+        bpy.ops.render.render(write_still=True)
+    scene.gaussvdb.mode = "PARTICLES"
+    scene.camera = None
+    with pytest.raises(RuntimeError, match="no camera"):
+        bpy.ops.render.render(write_still=True)
+
+
+def test_write_still_and_passes(bpy_module, scene, tmp_path):
+    bpy = bpy_module
+    _ramp_scene(bpy, scene)
+    scene.render.film_transparent = True
+    scene.gaussvdb.use_pass_depth = True
+    scene.gaussvdb.use_pass_value = True
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(tmp_path / "still.png")
+    scene.render.use_file_extension = False
+    bpy.ops.render.render(write_still=True)
+    px = _read_png(bpy, str(tmp_path / "still.png"))
+    assert px.shape == (H, W, 4)
+    assert px[H // 2, W // 2, 3] > 0.99  # the opaque slab
+    rr = bpy.data.images["Render Result"]
+    assert rr is not None
+
+
+def test_test_break_stops_quickly_and_stats(bpy_module, scene):
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+
+    bpy = bpy_module
+    make_object(bpy, "Cloud", lattice(16, 16, 16), values=np.linspace(0, 1, 16 ** 3))
+    add_camera(bpy, scene, (7.5, -40.0, 7.5), (math.pi / 2, 0.0, 0.0))
+    setup_render(scene, 200, 150)
+    scene.gaussvdb.threads = 1
+    dg = bpy.context.evaluated_depsgraph_get()
+
+    eng = FakeEngine()
+    final_render.render(eng, dg)  # warm-up (compiles or loads the kernels), full image
+    assert not eng.errors
+    assert eng.progress[-1] == 1.0
+    assert any("4,096 Gaussians" in s and "render" in s for s in eng.stats)
+    assert eng.image()[75, 100, 3] > 0.05
+
+    eng = FakeEngine(break_after=2)
+    t0 = time.perf_counter()
+    final_render.render(eng, dg)
+    t1 = time.perf_counter()
+    assert eng.t_break is not None
+    assert t1 - eng.t_break < 0.5, f"stopped {t1 - eng.t_break:.2f} s after Esc"
+    assert final_render.LAST_STATS["cancelled"]
+    assert t1 - t0 < 5.0

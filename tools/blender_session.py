@@ -1,0 +1,59 @@
+"""Blender (the bpy module) with this working tree enabled as the extension, for the CLI tools.
+
+    from blender_session import start
+    bpy = start()          # before anything else imports bpy
+
+Like tests/conftest.py: BLENDER_USER_EXTENSIONS/CONFIG/SCRIPTS point at a private folder whose
+`user_default/gaussvdb` is a symlink to the repository root, and `bl_ext.user_default.gaussvdb`
+is enabled. The folder is stable per user (not a fresh temp dir per run) so numba's kernel cache,
+which is keyed by the source path, is reused from one run to the next.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MODULE = "bl_ext.user_default.gaussvdb"
+_STARTED = {}
+
+
+def session_dir() -> str:
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    return os.path.join(tempfile.gettempdir(), f"gaussvdb-session-{uid}")
+
+
+def start():
+    """Enable the extension from this working tree; returns the bpy module."""
+    if "bpy" in _STARTED:
+        return _STARTED["bpy"]
+    if "bpy" in sys.modules:
+        raise RuntimeError("blender_session.start() must run before bpy is imported")
+    base = session_dir()
+    os.environ["BLENDER_USER_EXTENSIONS"] = os.path.join(base, "extensions")
+    os.environ["BLENDER_USER_CONFIG"] = os.path.join(base, "config")
+    os.environ["BLENDER_USER_SCRIPTS"] = os.path.join(base, "scripts")
+    os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(base, "numba"))
+    repo = os.path.join(os.environ["BLENDER_USER_EXTENSIONS"], "user_default")
+    os.makedirs(repo, exist_ok=True)
+    link = os.path.join(repo, "gaussvdb")
+    if os.path.islink(link) and os.path.realpath(link) != os.path.realpath(ROOT):
+        os.unlink(link)  # another checkout used this folder last
+    if not os.path.lexists(link):
+        os.symlink(ROOT, link)
+    import bpy  # noqa: I001  (bpy first: it puts addon_utils on the path)
+    import addon_utils
+
+    mod = addon_utils.enable(MODULE, default_set=True, handle_error=None)
+    if mod is None:
+        raise RuntimeError("the GaussVDB extension failed to enable")
+    _STARTED["bpy"] = bpy
+    return bpy
+
+
+def addon_module(name: str):
+    """A submodule of the enabled extension, e.g. addon_module('gaussvdb_addon.importer')."""
+    import importlib
+
+    return importlib.import_module(f"{MODULE}.{name}")
