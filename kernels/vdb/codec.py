@@ -109,34 +109,65 @@ def read_data(cur, count, et, flags):
     return a.astype(et.full).reshape(count, et.ncomp)
 
 
-def read_node_values(cur, nslots, active, flags, et, background):
-    """Decode all ``nslots`` values of one node; ``active`` is its value mask as a bool array.
+_POPC8 = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(axis=1).astype(np.int64)
 
-    Returns (values (nslots, ncomp) full dtype). Inactive slots are rebuilt from the metadata code.
+
+def popcount_bytes(mask_u8):
+    """Set bits in a uint8 mask array."""
+    return int(_POPC8[mask_u8].sum())
+
+
+def read_node_parts(cur, nslots, nactive, flags, et):
+    """Read one node's values codec without expanding it.
+
+    ``nactive`` is the popcount of the node's value mask. Returns (code, val0, val1, sel, data):
+    val0/val1 the stored inactive values (full dtype, or None when the code implies them), sel the
+    selection mask bytes (or None) and data the (count, ncomp) stored values in full dtype.
     """
     at = cur.pos
     code = cur.u8("node metadata code")
     if code > 6:
         raise cur.error(f"unknown node metadata code {code}", at)
-    bg = np.asarray(background, et.full).reshape(et.ncomp)
-    val1 = bg
-    val0 = bg if code == NO_MASK_OR_INACTIVE_VALS else -bg
+    val0 = val1 = None
     if code in (NO_MASK_AND_ONE_INACTIVE_VAL, MASK_AND_ONE_INACTIVE_VAL, MASK_AND_TWO_INACTIVE_VALS):
         val0 = cur.array(et.full, et.ncomp, "inactive value").copy()
         if code == MASK_AND_TWO_INACTIVE_VALS:
             val1 = cur.array(et.full, et.ncomp, "inactive value").copy()
     sel = None
     if code in (MASK_AND_NO_INACTIVE_VALS, MASK_AND_ONE_INACTIVE_VAL, MASK_AND_TWO_INACTIVE_VALS):
-        sel = np.unpackbits(cur.array(np.uint8, nslots // 8, "selection mask"), bitorder="little")
+        sel = cur.array(np.uint8, nslots // 8, "selection mask")
     mask_comp = bool(flags & COMPRESS_ACTIVE_MASK)
-    count = int(np.count_nonzero(active)) if (mask_comp and code != NO_MASK_AND_ALL_VALS) else nslots
+    count = nactive if (mask_comp and code != NO_MASK_AND_ALL_VALS) else nslots
     data = read_data(cur, count, et, flags)
+    return code, val0, val1, sel, data
+
+
+def inactive_values(code, val0, val1, background, et):
+    """The two inactive values a node's code selects between (full dtype, (ncomp,) each)."""
+    bg = np.asarray(background, et.full).reshape(et.ncomp)
+    if val0 is None:
+        val0 = bg if code == NO_MASK_OR_INACTIVE_VALS else -bg
+    if val1 is None:
+        val1 = bg
+    return val0, val1
+
+
+def read_node_values(cur, nslots, active, flags, et, background):
+    """Decode all ``nslots`` values of one node; ``active`` is its value mask as a bool array.
+
+    Returns (values (nslots, ncomp) full dtype). Inactive slots are rebuilt from the metadata code.
+    """
+    code, val0, val1, sel, data = read_node_parts(cur, nslots, int(np.count_nonzero(active)),
+                                                  flags, et)
+    count = len(data)
     if count == nslots:
         return data
+    val0, val1 = inactive_values(code, val0, val1, background, et)
     if sel is None:
         out = np.empty((nslots, et.ncomp), et.full)
         out[:] = val0
     else:
+        sel = np.unpackbits(sel, bitorder="little")
         out = np.where(sel[:, None].astype(bool), val1, val0).astype(et.full)
     if count:
         out[active] = data

@@ -18,6 +18,8 @@ except ImportError:  # pragma: no cover - numba is optional at run time
     def njit(*args, **kwargs):
         return (lambda f: f) if not args or not callable(args[0]) else args[0]
 
+_POPC8 = np.array([bin(i).count("1") for i in range(256)], np.int64)
+
 # scan status codes
 _OK, _TRUNC, _MASK, _CODE, _RAWSIZE, _BLOSCHDR = 0, 1, 2, 3, 4, 5
 _MESSAGES = {
@@ -167,10 +169,7 @@ def _popcount(masks):
     for i in range(masks.shape[0]):
         c = 0
         for k in range(masks.shape[1]):
-            b = masks[i, k]
-            while b:
-                b &= b - 1
-                c += 1
+            c += _POPC8[masks[i, k]]
         out[i] = c
     return out
 
@@ -219,30 +218,98 @@ def _decompress_all(cur, t, counts, pool, byte_starts, flags, et):
         finally:
             mv.release()
         return
+    ss = et.stored_size
     for i, o, n, d in zip(idx.tolist(), offs, lens, dsts):
-        nb = int(counts[i]) * et.stored_size
+        nb = int(counts[i]) * ss
         pool[d:d + nb] = np.frombuffer(decompress(cur, o, n, nb, flags), np.uint8)
 
 
-def decode_leaves(cur, masks, t, flags, et, background):
-    """Decompress every leaf chunk and scatter into (N, 512, ncomp) float32."""
+@njit(cache=True, nogil=True, inline="always")
+def _get(src, o, k, kind, lut):
+    """Float32 bits of stored component ``k`` of a chunk starting at byte ``o`` (half or float)."""
+    if kind == 0:
+        p = o + 2 * k
+        return lut[np.int64(src[p]) | (np.int64(src[p + 1]) << 8)]
+    p = o + 4 * k
+    return (np.uint32(src[p]) | (np.uint32(src[p + 1]) << np.uint32(8))
+            | (np.uint32(src[p + 2]) << np.uint32(16)) | (np.uint32(src[p + 3]) << np.uint32(24)))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _leaf(src, o, i, kind, lut, compact, masks, val0, val1, sel, outu):
+    nc = outu.shape[2]
+    if not compact:
+        for slot in range(512):
+            for c in range(nc):
+                outu[i, slot, c] = _get(src, o, slot * nc + c, kind, lut)
+        return
+    s = 0
+    for byte in range(64):
+        m = masks[i, byte]
+        q = sel[i, byte]
+        for bit in range(8):
+            slot = byte * 8 + bit
+            if (m >> bit) & 1:
+                for c in range(nc):
+                    outu[i, slot, c] = _get(src, o, s * nc + c, kind, lut)
+                s += 1
+            elif (q >> bit) & 1:
+                for c in range(nc):
+                    outu[i, slot, c] = val1[i, c]
+            else:
+                for c in range(nc):
+                    outu[i, slot, c] = val0[i, c]
+
+
+@njit(cache=True, nogil=True)
+def _decode(buf, pool, kind, lut, chunk_off, chunk_len, pool_start, masks, compact, val0, val1,
+            sel, outu, outf, mag):
+    """Convert and scatter every leaf straight from the file (raw chunks) or the pool (inflated
+    chunks) into ``outu`` (float32 bits, (N, 512, ncomp)); vec3 magnitudes go to ``mag``.
+
+    kind 0: half values, 1: float32. Every offset and length was validated by _scan and the
+    decompression before this runs.
+    """
+    nc = outu.shape[2]
+    for i in range(masks.shape[0]):
+        if chunk_len[i] > 0:
+            _leaf(pool, pool_start[i], i, kind, lut, compact[i], masks, val0, val1, sel, outu)
+        else:
+            _leaf(buf, chunk_off[i], i, kind, lut, compact[i], masks, val0, val1, sel, outu)
+        if nc == 3:
+            for slot in range(512):
+                x = outf[i, slot, 0]
+                y = outf[i, slot, 1]
+                z = outf[i, slot, 2]
+                mag[i, slot] = np.sqrt(x * x + y * y + z * z)
+
+
+_HALF_BITS = HALF_LUT.view(np.uint32)
+
+
+def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
+    """Decompress every leaf chunk and scatter into (N, 512, ncomp) float32.
+
+    With ``magnitudes`` (an (N, 512) float32 array) vec3 grids also get their per-voxel length.
+    """
     n = len(masks)
     counts = t["counts"]
-    starts = np.zeros(n + 1, np.int64)
-    np.cumsum(counts, out=starts[1:])
-    total = int(starts[-1])
-    pool = np.empty((total + 1) * et.stored_size, np.uint8)  # + 1 padding value, see _scatter
-    pool[total * et.stored_size:] = 0
-    byte_starts = starts[:-1] * et.stored_size
-    _copy_raw(cur.arr, t["chunk_off"], t["chunk_len"], pool, byte_starts)
-    _decompress_all(cur, t, counts, pool, byte_starts, flags, et)
-    if et.half:
-        data = HALF_LUT[pool.view("<u2")]
-    elif et.full == np.float32:
-        data = pool.view("<f4")
-    else:
-        data = pool.view(et.full).astype(np.float32)
-    data = data.reshape(-1, et.ncomp)
+    chunk_len = t["chunk_len"]
+    # only inflated chunks need a pool; raw ones are read in place
+    double = not et.half and et.full.itemsize == 8
+    zlen = counts * et.stored_size if double else np.where(chunk_len > 0, counts * et.stored_size, 0)
+    pool_start = np.zeros(n, np.int64)
+    if n > 1:
+        np.cumsum(zlen[:-1], out=pool_start[1:])
+    total = int(zlen.sum())
+    pool = np.empty(max(total, 8), np.uint8)
+    _decompress_all(cur, t, counts, pool, pool_start, flags, et)
+    kind = 0 if et.half else 1
+    if double:  # rare: gather every chunk, convert to float32 once, then decode as float32
+        _copy_raw(cur.arr, t["chunk_off"], chunk_len, pool, pool_start)
+        pool = pool[:total].view("<f8").astype("<f4").view(np.uint8)
+        pool_start = pool_start // 2
+        chunk_len = np.ones(n, np.int64)
     bg = np.asarray(background, np.float64).reshape(et.ncomp)
     codes = t["codes"]
     val0 = np.where((codes == 0)[:, None], bg, -bg).astype(np.float32)
@@ -258,8 +325,8 @@ def decode_leaves(cur, masks, t, flags, et, background):
         sel[idx] = cur.arr[t["seloff"][idx, None] + np.arange(64)]
     compact = counts != 512
     out = np.empty((n, 512, et.ncomp), np.float32)
-    if et.ncomp == 1:
-        _scatter1(data[:, 0], starts, masks, compact, val0, val1, sel, out[:, :, 0])
-    else:
-        _scatter(data, starts, masks, compact, val0, val1, sel, out)
+    if magnitudes is None:
+        magnitudes = np.empty((n if et.ncomp == 3 else 0, 512), np.float32)
+    _decode(cur.arr, pool, kind, _HALF_BITS, t["chunk_off"], chunk_len, pool_start, masks, compact,
+            val0.view(np.uint32), val1.view(np.uint32), sel, out.view(np.uint32), out, magnitudes)
     return out

@@ -11,7 +11,7 @@ from . import codec
 from .codec import ElementType, compression_text
 from .errors import VDBFormatError
 from .griddata import GridData, VDBFile
-from .leaves import decode_leaves, popcount_rows, scan_leaves
+from .leaves import decode_leaves, njit, popcount_rows, scan_leaves
 from .metadata import read_metamap
 from .stream import Cursor
 from .transform import read_transform
@@ -98,24 +98,35 @@ def _value_type(tname):
     return vt
 
 
+@njit(cache=True, nogil=True)
+def _leaf_bbox(origins, masks, lo, hi):
+    """Fold the inclusive index bbox of every set mask bit into lo/hi (int64 (3,) each)."""
+    for i in range(masks.shape[0]):
+        for x in range(8):
+            for y in range(8):
+                b = masks[i, x * 8 + y]
+                if b == 0:
+                    continue
+                z0 = 0
+                while not (b >> z0) & 1:
+                    z0 += 1
+                z1 = 7
+                while not (b >> z1) & 1:
+                    z1 -= 1
+                for axis, a0, a1 in ((0, x, x), (1, y, y), (2, z0, z1)):
+                    v0 = np.int64(origins[i, axis]) + a0
+                    v1 = np.int64(origins[i, axis]) + a1
+                    if v0 < lo[axis]:
+                        lo[axis] = v0
+                    if v1 > hi[axis]:
+                        hi[axis] = v1
+
+
 def _bbox(origins, masks_u8, tile_origins, tile_sizes, tile_active):
     lo = np.full(3, np.iinfo(np.int64).max, np.int64)
     hi = np.full(3, np.iinfo(np.int64).min, np.int64)
     if len(origins):
-        words = masks_u8.view("<u8").reshape(-1, 8)   # word index = local x, byte = y, bit = z
-        keep = words.any(axis=1)
-        if keep.any():
-            words, o = words[keep], origins[keep].astype(np.int64)
-            orw = np.bitwise_or.reduce(words, axis=1)
-            ybytes = orw.view(np.uint8).reshape(-1, 8)
-            zbyte = np.bitwise_or.reduce(ybytes, axis=1)
-            occ = (words != 0, ybytes != 0,
-                   np.unpackbits(zbyte[:, None], axis=1, bitorder="little").astype(bool))
-            for axis in range(3):
-                first = occ[axis].argmax(axis=1)
-                last = 7 - occ[axis][:, ::-1].argmax(axis=1)
-                lo[axis] = (o[:, axis] + first).min()
-                hi[axis] = (o[:, axis] + last).max()
+        _leaf_bbox(np.ascontiguousarray(origins), np.ascontiguousarray(masks_u8), lo, hi)
     if tile_active.any():
         to = tile_origins[tile_active].astype(np.int64)
         ts = tile_sizes[tile_active].astype(np.int64)[:, None]
@@ -164,7 +175,7 @@ class _Reader:
         topo, values, vectors = tree
         lo, hi = _bbox(topo.leaf_origins, topo.leaf_masks, topo.tile_origins, topo.tile_sizes,
                        topo.tile_active)
-        leaf_count = int(popcount_rows(topo.leaf_masks).sum())
+        leaf_count = int((topo.popc if topo.popc is not None else popcount_rows(topo.leaf_masks)).sum())
         tile_count = int(np.sum(topo.tile_sizes[topo.tile_active].astype(np.int64) ** 3))
         active = leaf_count + tile_count
         expected = meta.get("file_voxel_count")
@@ -193,6 +204,7 @@ class _Reader:
         need_scan = not self.topology_only or not self.has_offsets
         if need_scan:
             table = scan_leaves(cur, topo.leaf_masks, flags, et)
+            topo.popc = table["popc"]
             if self.has_offsets and cur.pos != cur.end:
                 raise cur.error(f"grid ends at byte {cur.pos}, its descriptor says {cur.end}")
         if not self.topology_only:
@@ -203,12 +215,13 @@ class _Reader:
                     f"limit of {self.max_bytes / 2**20:.1f} MiB (raise max_bytes to read it)",
                     self.path, name, topo.start)
             self.used_bytes += need
-            out = decode_leaves(cur, topo.leaf_masks, table, flags, et, topo.background)
+            mags = np.empty((len(topo.leaf_masks), 512), np.float32) if et.ncomp == 3 else None
+            out = decode_leaves(cur, topo.leaf_masks, table, flags, et, topo.background, mags)
             if et.ncomp == 1:
                 values = out.reshape(-1, 512)
             else:
                 vectors = out
-                values = np.sqrt(np.einsum("nsc,nsc->ns", out, out))
+                values = mags  # float32 sqrt(x*x + y*y + z*z), computed in the decode pass
         elif self.has_offsets:
             cur.pos = cur.end
         tree = (topo, values, vectors)
