@@ -1,0 +1,253 @@
+"""Acceleration data built once per scene sync (numpy): the VDB leaf hierarchy as a two-level
+sparse grid per object.
+
+Index space is OpenVDB's (voxel centres at integers). Work coordinates are q = index + 0.5, so
+leaf cell c = floor(q / 8) spans index [8c - 0.5, 8c + 7.5] (exactly the VDB leaf with origin 8c)
+and node n = floor(q / 128) holds 16^3 leaf cells. Per object: a dense table over the bounding
+box of occupied nodes (-> node id or -1); per node a 16^3 table (-> global cell id or -1); per
+cell a list of Gaussians whose k-sigma support box meets it (its own and its halo), in
+ascending Gaussian id. All objects are packed into flat arrays with global ids.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+LEAF = 8
+NODE_LEAVES = 16
+NODE = LEAF * NODE_LEAVES
+MAX_NODE_TABLE = 1 << 26  # dense node table entries per object (sparse-enough for any VDB we read)
+
+
+def gaussian_arrays(gs):
+    """(mu float64 (M,3) absolute index coords, sigma float64 (M,3), values float64 (M,),
+    amplitudes float64 (M,)) from a GaussianSet (origins int32 + float32 offsets: exact in f64)."""
+    start = np.asarray(gs.group_start, np.int64)
+    origins = np.asarray(gs.group_origins, np.int64).reshape(-1, 3)
+    counts = np.diff(start)
+    m = int(start[-1]) if start.size else 0
+    if m == 0:
+        z = np.zeros((0, 3))
+        return z, z, np.zeros(0), np.zeros(0)
+    mu = np.repeat(origins, counts, axis=0).astype(np.float64) + np.asarray(gs.offsets, np.float64)[:m]
+    sig = np.asarray(gs.sigmas, np.float64)[:m]
+    vals = np.asarray(gs.values, np.float64)[:m] if getattr(gs, "values", None) is not None \
+        else np.full(m, np.nan)
+    amps = np.asarray(gs.amplitudes, np.float64)[:m]
+    return mu, sig, vals, amps
+
+
+def _cells_to_nodes(cell_xyz):
+    """cell coords (C,3) int64 -> (node_min (3,), node_dims (3,), node_table (prod,), node_cells
+    (n_nodes, 4096) local cell ids)."""
+    nodes = np.floor_divide(cell_xyz, NODE_LEAVES)
+    nmin = nodes.min(axis=0)
+    ndims = nodes.max(axis=0) - nmin + 1
+    if int(np.prod(ndims)) > MAX_NODE_TABLE:
+        raise MemoryError(f"object spans {ndims} nodes: too sparse for a dense node table")
+    rel = nodes - nmin
+    nkey = (rel[:, 0] * ndims[1] + rel[:, 1]) * ndims[2] + rel[:, 2]
+    ukeys, ninv = np.unique(nkey, return_inverse=True)
+    table = np.full(int(np.prod(ndims)), -1, np.int32)
+    table[ukeys] = np.arange(ukeys.size, dtype=np.int32)
+    loc = cell_xyz - nodes * NODE_LEAVES
+    lkey = (loc[:, 0] * NODE_LEAVES + loc[:, 1]) * NODE_LEAVES + loc[:, 2]
+    ncells = np.full((ukeys.size, NODE_LEAVES ** 3), -1, np.int32)
+    ncells[ninv.ravel(), lkey] = np.arange(cell_xyz.shape[0], dtype=np.int32)
+    return nmin, ndims, table, ncells
+
+
+class Accel:
+    """Packed two-level grid for all objects (see module doc). ``cell_items`` is empty for the
+    voxel (reference) structure, which uses ``bricks`` instead."""
+
+    def __init__(self, n_obj):
+        self.n_obj = n_obj
+        self.node_min = np.zeros((n_obj, 3), np.int64)
+        self.node_dims = np.zeros((n_obj, 3), np.int64)   # 0 dims = empty object
+        self.node_off = np.zeros(n_obj, np.int64)
+        self.node_off_id = np.zeros(n_obj, np.int64)
+        self.tables, self.ncells_list, self.cell_xyz_list = [], [], []
+        self.n_cells = 0
+        self.n_nodes = 0
+        self.table_size = 0
+
+    def add(self, k, cell_xyz):
+        """Register object k's cells (C,3) int64; returns the global id of its first cell."""
+        first = self.n_cells
+        if cell_xyz.shape[0] == 0:
+            return first
+        nmin, ndims, table, ncells = _cells_to_nodes(cell_xyz)
+        self.node_min[k], self.node_dims[k] = nmin, ndims
+        self.node_off[k] = self.table_size
+        table = np.where(table >= 0, table + self.n_nodes, -1).astype(np.int32)
+        ncells = np.where(ncells >= 0, ncells + first, -1).astype(np.int32)
+        self.tables.append(table)
+        self.ncells_list.append(ncells)
+        self.cell_xyz_list.append(cell_xyz)
+        self.table_size += table.size
+        self.n_nodes += ncells.shape[0]
+        self.n_cells += cell_xyz.shape[0]
+        return first
+
+    def finish(self):
+        self.node_table = np.concatenate(self.tables) if self.tables else np.full(1, -1, np.int32)
+        self.node_cells = np.concatenate(self.ncells_list) if self.ncells_list else \
+            np.full((1, NODE_LEAVES ** 3), -1, np.int32)
+        self.cell_xyz = np.concatenate(self.cell_xyz_list) if self.cell_xyz_list else \
+            np.zeros((0, 3), np.int64)
+        self.max_walk = int(sum(int(NODE_LEAVES * d.sum()) + 3 * NODE_LEAVES + 8
+                                for d in self.node_dims if d.sum() > 0)) + 8
+        del self.tables, self.ncells_list, self.cell_xyz_list
+        return self
+
+
+def build_gauss_accel(objects, support_k):
+    """Gaussians of all objects + the halo-listed leaf hierarchy."""
+    n = len(objects)
+    acc = Accel(n)
+    mus, invs, vals, amps, gobj = [], [], [], [], []
+    starts, items = [np.zeros(1, np.int64)], []
+    g_off = 0
+    acc.g_first = np.zeros(n + 1, np.int64)
+    for k, ob in enumerate(objects):
+        mu, sig, v, a = gaussian_arrays(ob.gaussians) if ob.gaussians is not None else \
+            gaussian_arrays_empty()
+        keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
+        mu, sig, v, a = mu[keep], sig[keep], v[keep], a[keep]
+        m = mu.shape[0]
+        acc.g_first[k] = g_off
+        if m:
+            r = support_k * sig
+            clo = np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF)
+            chi = np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF)
+            ext = chi - clo + 1
+            cnt = ext[:, 0] * ext[:, 1] * ext[:, 2]
+            gid = np.repeat(np.arange(m, dtype=np.int64), cnt)
+            first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+            rr = np.arange(gid.size, dtype=np.int64) - first
+            eyz = ext[gid, 1] * ext[gid, 2]
+            cx = clo[gid, 0] + rr // eyz
+            cy = clo[gid, 1] + (rr % eyz) // ext[gid, 2]
+            cz = clo[gid, 2] + rr % ext[gid, 2]
+            cmin = np.array([cx.min(), cy.min(), cz.min()])
+            cdim = np.array([cx.max(), cy.max(), cz.max()]) - cmin + 1
+            key = ((cx - cmin[0]) * cdim[1] + (cy - cmin[1])) * cdim[2] + (cz - cmin[2])
+            order = np.argsort(key, kind="stable")  # keeps ascending gid within a cell
+            key, gid = key[order], gid[order]
+            ukey, ufirst, ucount = np.unique(key, return_index=True, return_counts=True)
+            cxyz = np.stack([ukey // (cdim[1] * cdim[2]) + cmin[0],
+                             (ukey // cdim[2]) % cdim[1] + cmin[1],
+                             ukey % cdim[2] + cmin[2]], axis=1).astype(np.int64)
+            acc.add(k, cxyz)
+            starts.append(starts[-1][-1] + np.cumsum(ucount))
+            items.append((gid + g_off).astype(np.int32))
+        mus.append(mu)
+        invs.append(1.0 / sig)
+        vals.append(v)
+        amps.append(a)
+        gobj.append(np.full(m, k, np.int32))
+        g_off += m
+    acc.g_first[n] = g_off
+    acc.finish()
+    acc.cell_start = np.concatenate(starts).astype(np.int64)
+    acc.cell_items = np.concatenate(items) if items else np.zeros(0, np.int32)
+    acc.g_mu = np.ascontiguousarray(np.concatenate(mus)) if mus else np.zeros((0, 3))
+    acc.g_inv = np.ascontiguousarray(np.concatenate(invs)) if invs else np.zeros((0, 3))
+    acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
+    acc.g_amp = np.concatenate(amps) if amps else np.zeros(0)
+    acc.g_obj = np.concatenate(gobj) if gobj else np.zeros(0, np.int32)
+    # paper's volume factor 1/det(Sigma) (index units)
+    acc.g_volfac = np.prod(acc.g_inv, axis=1) ** 2 if acc.g_inv.size else np.zeros(0)
+    lens = np.diff(acc.cell_start)
+    acc.max_list = int(lens.max()) if lens.size else 0
+    return acc
+
+
+def gaussian_arrays_empty():
+    z = np.zeros((0, 3))
+    return z, z, np.zeros(0), np.zeros(0)
+
+
+BRICK = LEAF + 2  # voxels 8c-1 .. 8c+8 per axis: enough for trilinear anywhere in the cell
+
+
+def _grid_leaves(grid):
+    """(origins int64 (N,3), values float32 (N,8,8,8)) of a GridData, with active tiles expanded
+    into constant leaves (tiles of 4096 voxels are skipped: too large to expand)."""
+    org = np.asarray(grid.leaf_origins, np.int64).reshape(-1, 3)
+    val = np.asarray(grid.leaf_values, np.float32).reshape(-1, LEAF, LEAF, LEAF)
+    to = getattr(grid, "tile_origins", None)
+    if to is not None and len(to):
+        to = np.asarray(to, np.int64).reshape(-1, 3)
+        ts = np.asarray(grid.tile_sizes, np.int64)
+        tv = np.asarray(grid.tile_values, np.float32)
+        ta = np.asarray(grid.tile_active, bool)
+        extra_o, extra_v = [], []
+        for o, s, v, a in zip(to, ts, tv, ta):
+            if not a or s > 128:
+                continue
+            r = np.arange(0, s, LEAF)
+            g = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3) + o
+            extra_o.append(g)
+            extra_v.append(np.full((g.shape[0], LEAF, LEAF, LEAF), v, np.float32))
+        if extra_o:
+            org = np.concatenate([org] + extra_o)
+            val = np.concatenate([val] + extra_v)
+    return org, val
+
+
+def build_voxel_accel(objects):
+    """Reference-mode structure: one cell per VDB leaf with a 10^3 brick (apron of the
+    neighbours' voxels; voxels of missing leaves take the grid background)."""
+    n = len(objects)
+    acc = Accel(n)
+    bricks = []
+    for k, ob in enumerate(objects):
+        if ob.grid is None:
+            continue
+        org, val = _grid_leaves(ob.grid)
+        if org.shape[0] == 0:
+            continue
+        bg = np.float32(getattr(ob.grid, "background", 0.0) or 0.0)
+        cells = np.floor_divide(org, LEAF)
+        cmin = cells.min(axis=0) - 1
+        cdim = cells.max(axis=0) - cmin + 2
+        key = ((cells[:, 0] - cmin[0]) * cdim[1] + (cells[:, 1] - cmin[1])) * cdim[2] + (cells[:, 2] - cmin[2])
+        order = np.argsort(key, kind="stable")
+        skey = key[order]
+        b = np.full((org.shape[0], BRICK, BRICK, BRICK), bg, np.float32)
+        spans = {-1: (slice(0, 1), slice(7, 8)), 0: (slice(1, 9), slice(0, 8)), 1: (slice(9, 10), slice(0, 1))}
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    nk = key + (dx * cdim[1] + dy) * cdim[2] + dz
+                    pos = np.clip(np.searchsorted(skey, nk), 0, skey.size - 1)
+                    found = skey[pos] == nk
+                    src = order[pos[found]]
+                    (bx, sx), (by, sy), (bz, sz) = spans[dx], spans[dy], spans[dz]
+                    b[np.nonzero(found)[0][:, None, None, None],
+                      np.arange(10)[bx][None, :, None, None],
+                      np.arange(10)[by][None, None, :, None],
+                      np.arange(10)[bz][None, None, None, :]] = \
+                        val[src][:, sx, sy, sz]
+        acc.add(k, cells)
+        bricks.append(b)
+    acc.finish()
+    acc.bricks = np.concatenate(bricks) if bricks else np.zeros((1, BRICK, BRICK, BRICK), np.float32)
+    acc.brick_lo = np.nanmin(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
+    acc.brick_hi = np.nanmax(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
+    acc.cell_obj = np.concatenate([np.full(int(c), k, np.int32) for k, c in enumerate(_cell_counts(acc))]) \
+        if acc.n_cells else np.zeros(0, np.int32)
+    return acc
+
+
+def _cell_counts(acc):
+    # cells were added in object order; recover per-object counts from node tables
+    counts = np.zeros(acc.n_obj, np.int64)
+    for k in range(acc.n_obj):
+        if acc.node_dims[k].sum() == 0:
+            continue
+        t = acc.node_table[acc.node_off[k]: acc.node_off[k] + int(np.prod(acc.node_dims[k]))]
+        ids = t[t >= 0]
+        counts[k] = int((acc.node_cells[ids] >= 0).sum())
+    return counts

@@ -1,0 +1,342 @@
+"""Render devices, in the manner of Cycles: the engine talks to a ``Device``; ``sync(scene)``
+uploads/builds acceleration data once per scene change, ``render(...)`` draws a frame or a band
+of rows. ``CPUDevice`` (numba, parallel over rows, nogil, cached kernels) ships now; a GPU
+device implements the same two methods and registers itself in ``_REGISTRY``.
+
+Passes: 'Combined' float32 (H, W, 4), linear, premultiplied alpha, row 0 = bottom;
+'Depth' float32 (H, W): world distance along the ray where the accumulated opacity reaches 0.5
+(1e10 where it never does); 'Value' float32 (H, W): opacity-weighted mean data value (0 where
+nothing was hit; level sets contribute no value).
+"""
+from __future__ import annotations
+
+import os
+import time
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from .accel import build_gauss_accel, build_voxel_accel
+from .scene import RenderScene, same_geometry
+from .transfer import LUT_SIZE, TransferFunction
+
+MODE_IDS = {"particles": 0, "field": 1, "paper": 2, "reference": 3}
+
+
+class Device(ABC):
+    name = "abstract"
+
+    @abstractmethod
+    def sync(self, scene: RenderScene) -> None:
+        """Build/upload acceleration data for the scene's geometry (objects, placement,
+        support radius). Cheap to skip when ``scene.geometry_key()`` is unchanged."""
+
+    @abstractmethod
+    def render(self, scene: RenderScene, camera, tf: TransferFunction, *, rows=None,
+               progress=None, cancel=None) -> dict:
+        """Render rows ``rows = (row0, row1)`` (default all) and return the passes for those
+        rows. ``progress(fraction)`` is called and ``cancel()`` polled between tiles; on cancel
+        the rows not yet drawn stay transparent and ``self.stats['cancelled']`` is True."""
+
+
+def _alpha_max_table(lut):
+    a = np.asarray(lut[:, 3], np.float64)
+    k = a.size
+    t = np.zeros((k, k))
+    for i in range(k):
+        t[i, i:] = np.maximum.accumulate(a[i:])
+    return t
+
+
+def _range_alpha(tf, lo, hi):
+    """Max alpha of tf over value ranges [lo, hi] (arrays). NaN bounds -> 0."""
+    k = tf.lut.shape[0]
+    xlo = np.nan_to_num(tf.normalize(lo), nan=1.0)
+    xhi = np.nan_to_num(tf.normalize(hi), nan=0.0)
+    i0 = np.clip(np.floor(xlo * (k - 1)).astype(np.int64), 0, k - 1)
+    i1 = np.clip(np.ceil(xhi * (k - 1)).astype(np.int64), 0, k - 1)
+    tab = _alpha_max_table(tf.lut)
+    out = tab[i0, np.maximum(i0, i1)]
+    return np.where(i1 >= i0, out, 0.0)
+
+
+class CPUDevice(Device):
+    """numba CPU device. ``threads``: numba threads (default all). ``cache_dir``: where numba
+    caches compiled kernels (the engine passes the extension's user directory, e.g.
+    ``bpy.utils.extension_path_user(__package__, path='numba_cache', create=True)``); it applies
+    if given before the kernels are first imported in this process."""
+    name = "CPU"
+
+    def __init__(self, threads=None, cache_dir=None, tile_rows=32):
+        if cache_dir:
+            set_cache_dir(cache_dir)
+        elif not __name__.startswith("kernels.") and "NUMBA_CACHE_DIR" not in os.environ:
+            # Imported as an extension package (bl_ext....): numba pickles the module name into
+            # its cache entries, so never share the source-tree __pycache__ with plain Python.
+            import tempfile
+            set_cache_dir(os.path.join(tempfile.gettempdir(), "gaussvdb_numba_" + __name__.replace(".", "_")))
+        from . import _cpu  # noqa: F401  (compiles or loads cached kernels lazily on first call)
+        self._k = _cpu
+        self.threads = threads
+        self.tile_rows = int(tile_rows)
+        self._key = None
+        self.gacc = None
+        self.vacc = None
+        self.stats = {}
+
+    # -- sync -----------------------------------------------------------------------------
+    def sync(self, scene: RenderScene) -> None:
+        t0 = time.perf_counter()
+        key = scene.geometry_key()
+        if same_geometry(key, self._key):
+            self.stats["seconds_sync"] = 0.0
+            return
+        objs = scene.objects
+        self.gacc = build_gauss_accel(objs, scene.support_k)
+        self.vacc = build_voxel_accel(objs) if any(o.grid is not None for o in objs) else None
+        # per-object world coordinate ranges (level-set colouring) and voxel sizes
+        n = len(objs)
+        self.w2i = np.zeros((n, 4, 4))
+        self.coord_range = np.zeros((n, 3, 2))
+        self.voxel_world = np.ones(n)
+        for k, o in enumerate(objs):
+            m = o.matrix_world
+            self.w2i[k] = np.linalg.inv(m)
+            self.voxel_world[k] = float(np.prod(np.linalg.norm(m[:3, :3], axis=0))) ** (1.0 / 3.0)
+            g0, g1 = self.gacc.g_first[k], self.gacc.g_first[k + 1]
+            if g1 > g0:
+                lo, hi = self.gacc.g_mu[g0:g1].min(0), self.gacc.g_mu[g0:g1].max(0)
+            elif o.grid is not None:
+                lo = np.asarray(o.grid.bbox_min, np.float64)
+                hi = np.asarray(o.grid.bbox_max, np.float64)
+            else:
+                lo = hi = np.zeros(3)
+            corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                for z in (lo[2], hi[2])])
+            wc = corners @ m.T
+            self.coord_range[k, :, 0] = wc[:, :3].min(0)
+            self.coord_range[k, :, 1] = wc[:, :3].max(0)
+        self._key = key
+        self.stats["seconds_sync"] = time.perf_counter() - t0
+
+    # -- render ---------------------------------------------------------------------------
+    def _prepare(self, scene, tf):
+        objs = scene.objects
+        n = len(objs)
+        tfs = [tf]
+        obj_tf = np.zeros(n, np.int32)
+        for k, o in enumerate(objs):
+            if o.tf is not None:
+                tfs.append(o.tf)
+                obj_tf[k] = len(tfs) - 1
+        tfs = [_resample(t) for t in tfs]
+        tf_lut = np.ascontiguousarray(np.stack([t.lut.astype(np.float64) for t in tfs]))
+        tf_par = np.stack([t.packed() for t in tfs])
+        obj_kind = np.array([1 if o.is_level_set else 0 for o in objs], np.int32)
+        obj_ls = np.zeros((n, 11))
+        axes = {"x": 0, "y": 1, "z": 2}
+        for k, o in enumerate(objs):
+            c = o.level_set_color
+            if isinstance(c, str):
+                ax = axes[c.lower()]
+                obj_ls[k, 0] = 0.0
+                obj_ls[k, 1:5] = o.matrix_world[ax]
+                obj_ls[k, 5:7] = self.coord_range[k, ax]
+            else:
+                obj_ls[k, 0] = 1.0
+                obj_ls[k, 8:11] = np.asarray(c, np.float64)[:3]
+            obj_ls[k, 7] = self.voxel_world[k]
+        obj_step = np.full(n, float(scene.step))
+        return tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step
+
+    def _gauss_weights(self, mode, tfs, obj_tf, obj_kind, obj_ls):
+        """Per-Gaussian extinction scale (particles/paper: density * alpha(v) * a; level sets:
+        density * a) and colour, or field weights (v * a; level sets: a)."""
+        A = self.gacc
+        m = A.g_val.shape[0]
+        w = np.zeros(m)
+        col = np.zeros((m, 3))
+        for k in range(len(obj_tf)):
+            s = slice(A.g_first[k], A.g_first[k + 1])
+            if s.stop == s.start:
+                continue
+            t = tfs[obj_tf[k]]
+            v, a = A.g_val[s], A.g_amp[s]
+            if mode == 1:
+                w[s] = a if obj_kind[k] else np.nan_to_num(v) * a
+                continue
+            if obj_kind[k]:
+                w[s] = t.density * a
+                ls = obj_ls[k]
+                if ls[0] > 0.5:
+                    col[s] = ls[8:11]
+                else:
+                    c = A.g_mu[s] @ ls[1:4] + ls[4]
+                    x = np.clip((c - ls[5]) / (ls[6] - ls[5]), 0, 1) if ls[6] > ls[5] else np.full(c.shape, 0.5)
+                    col[s] = _lut_rgb(t.lut, x)
+            else:
+                rgba = t(v)
+                w[s] = t.density * rgba[:, 3] * a
+                col[s] = rgba[:, :3]
+        return w, col
+
+    def _cell_skip(self, mode, acc, w, tfs, obj_tf, obj_kind):
+        c = acc.n_cells
+        if c == 0:
+            return np.zeros(1, np.uint8)
+        if mode == 3:
+            skip = np.zeros(c, np.uint8)
+            cell_obj = acc.cell_obj
+            for k in range(len(obj_tf)):
+                sel = cell_obj == k
+                t = tfs[obj_tf[k]]
+                if obj_kind[k]:
+                    skip[sel] = t.density <= 0
+                else:
+                    skip[sel] = (_range_alpha(t, acc.brick_lo[sel], acc.brick_hi[sel]) <= 0) | (t.density <= 0)
+            return skip
+        items = acc.cell_items
+        starts = acc.cell_start[:-1]
+        if mode != 1:
+            mx = np.maximum.reduceat(np.abs(w[items]), starts)
+            return (mx <= 0).astype(np.uint8)
+        # field: bound the summed field per cell: [sum of negative weights, sum of positive]
+        wi = w[items]
+        lo = np.add.reduceat(np.minimum(wi, 0.0), starts)
+        hi = np.add.reduceat(np.maximum(wi, 0.0), starts)
+        cobj = self.gacc.g_obj[items[starts]]
+        skip = np.zeros(c, np.uint8)
+        for k in range(len(obj_tf)):
+            sel = cobj == k
+            t = tfs[obj_tf[k]]
+            if obj_kind[k]:
+                skip[sel] = (t.density <= 0) | (hi[sel] <= 0)
+            else:
+                skip[sel] = (_range_alpha(t, lo[sel], hi[sel]) <= 0) | (t.density <= 0)
+        return skip
+
+    def render(self, scene, camera, tf, *, rows=None, progress=None, cancel=None):
+        import numba
+
+        if self.gacc is None or not same_geometry(scene.geometry_key(), self._key):
+            self.sync(scene)
+        t_start = time.perf_counter()
+        mode = MODE_IDS[scene.mode]
+        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step = self._prepare(scene, tf)
+        if mode == 3:
+            acc = self.vacc
+            if acc is None:
+                raise ValueError("reference mode needs the source grids (RenderObject.grid)")
+            g_w = np.zeros(1)
+            g_col = np.zeros((1, 3))
+            bricks, cell_xyz = acc.bricks, acc.cell_xyz
+            cell_start, cell_items = np.zeros(2, np.int64), np.zeros(1, np.int32)
+            g_mu = g_inv = np.zeros((1, 3))
+            g_val, g_obj, g_volfac = np.zeros(1), np.zeros(1, np.int32), np.zeros(1)
+            max_hits = 1
+        else:
+            acc = self.gacc
+            g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, obj_ls)
+            bricks = np.zeros((1, 10, 10, 10), np.float32)
+            cell_xyz = acc.cell_xyz if acc.cell_xyz.size else np.zeros((1, 3), np.int64)
+            cell_start, cell_items = acc.cell_start, acc.cell_items
+            g_mu, g_inv, g_val, g_obj, g_volfac = acc.g_mu, acc.g_inv, acc.g_val, acc.g_obj, acc.g_volfac
+            if g_mu.shape[0] == 0:
+                g_mu = g_inv = np.zeros((1, 3))
+                g_val, g_obj, g_volfac, g_w = np.zeros(1), np.zeros(1, np.int32), np.zeros(1), np.zeros(1)
+                g_col = np.zeros((1, 3))
+                cell_items = np.zeros(1, np.int32)
+            max_hits = max(1, acc.max_list * max(1, len(scene.objects)))
+        cell_skip = self._cell_skip(mode, acc, g_w, tfs, obj_tf, obj_kind)
+        bg = np.asarray(scene.background, np.float64).ravel()
+        bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
+        settings = np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
+                             float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
+                             float(scene.paper_steps), float(scene.paper_max_depth),
+                             float(scene.sweep_max)])
+        cam = camera.packed()
+        r0, r1 = (0, camera.height) if rows is None else (int(rows[0]), int(rows[1]))
+        nr, W = r1 - r0, camera.width
+        rgba = np.zeros((nr, W, 4), np.float32)
+        depth = np.full((nr, W), 1e10, np.float32)
+        value = np.zeros((nr, W), np.float32)
+        segs = np.zeros(nr)
+        threads = scene.threads if scene.threads else self.threads
+        old = numba.get_num_threads()
+        if threads:
+            numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+        cancelled = False
+        try:
+            step = max(1, self.tile_rows) if (progress or cancel) else nr
+            a = 0
+            while a < nr:
+                if cancel is not None and cancel():
+                    cancelled = True
+                    break
+                b = min(nr, a + step)
+                o_rgba = np.empty((b - a, W, 4))
+                o_depth = np.empty((b - a, W))
+                o_value = np.empty((b - a, W))
+                self._k.render_rows(mode, cam, r0 + a, r0 + b, self.w2i, acc.node_min, acc.node_dims,
+                                    acc.node_off, acc.node_table, acc.node_cells, cell_skip,
+                                    cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
+                                    g_volfac, bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step,
+                                    tf_lut, tf_par, settings, acc.max_walk, max_hits,
+                                    o_rgba, o_depth, o_value, segs[a:b])
+                rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
+                a = b
+                if progress is not None:
+                    progress(a / nr)
+        finally:
+            numba.set_num_threads(old)
+        self.stats.update(seconds_render=time.perf_counter() - t_start, segments=float(segs.sum()),
+                          cancelled=cancelled, threads=numba.get_num_threads() if not threads else threads)
+        out = {"Combined": rgba}
+        if "Depth" in scene.passes:
+            out["Depth"] = depth
+        if "Value" in scene.passes:
+            out["Value"] = value
+        return out
+
+
+def _lut_rgb(lut, x):
+    k = lut.shape[0]
+    f = np.clip(x, 0, 1) * (k - 1)
+    i0 = np.minimum(f.astype(np.int64), k - 2)
+    w = (f - i0)[:, None]
+    return lut[i0, :3] * (1 - w) + lut[i0 + 1, :3] * w
+
+
+def _resample(t: TransferFunction) -> TransferFunction:
+    if t.lut.shape[0] == LUT_SIZE:
+        return t
+    x = np.linspace(0, 1, LUT_SIZE)
+    xp = np.linspace(0, 1, t.lut.shape[0])
+    lut = np.stack([np.interp(x, xp, t.lut[:, c]) for c in range(4)], axis=1)
+    return TransferFunction(lut, t.vmin, t.vmax, t.log_scale, t.density)
+
+
+def set_cache_dir(path):
+    """Point numba's kernel cache at ``path`` (call before the first CPUDevice in a process)."""
+    os.makedirs(path, exist_ok=True)
+    os.environ["NUMBA_CACHE_DIR"] = path
+    try:
+        import numba
+        numba.config.CACHE_DIR = path
+    except Exception:  # pragma: no cover
+        pass
+
+
+_REGISTRY = {"CPU": CPUDevice}
+
+
+def available_devices():
+    """Names of the devices this build can use (a GPU device adds itself to _REGISTRY)."""
+    return list(_REGISTRY)
+
+
+def get_device(name="CPU", **kw) -> Device:
+    try:
+        return _REGISTRY[name](**kw)
+    except KeyError:
+        raise ValueError(f"unknown device {name!r}; available: {available_devices()}") from None
