@@ -20,16 +20,89 @@ from __future__ import annotations
 import numpy as np
 
 from .gaussian_set import GaussianSet
-from .weights import amplitudes, sigmas_from_codes
+from .refine import _true_voxels, factors_from_codes, quantize_factors
+from .weights import amplitudes64, sigmas_from_codes
 
-VERSION = 1
+VERSION = 2  # 1: int64 "meta" + float arrays; 2: one varint "header" (both are decoded)
 VALUE_TOL = 1e-3
 _TILE_SIZES = np.array([8, 128, 4096], np.int64)
 _CLASSES = ("fog_volume", "level_set", "staggered", "unknown")
 _META = ("version", "n", "n_leaf", "n_tile", "paper", "level_set", "origin_mode", "lmin_x",
          "lmin_y", "lmin_z", "ldim_x", "ldim_y", "ldim_z", "w_lx", "w_ly", "w_lz", "count_const",
          "w_count", "cmin", "w_c", "sphere_mode", "smin", "w_s", "v_mode", "w_v", "value_mode",
-         "class", "tile_const")  # int64 each: a fixed 224 B
+         "class", "tile_const")  # version 1: int64 each, a fixed 224 B
+_META2 = _META + ("amp_mode", "amp_cmin", "w_amp", "xform_mode")  # version 2: zigzag varints
+
+
+def _zz(x: int) -> int:
+    return (x << 1) if x >= 0 else ((-x << 1) - 1)
+
+
+def _unzz(u: int) -> int:
+    return (u >> 1) if not (u & 1) else -((u + 1) >> 1)
+
+
+def varints(vals) -> bytes:
+    out = bytearray()
+    for v in vals:
+        u = _zz(int(v))
+        while True:
+            b = u & 0x7F
+            u >>= 7
+            if u:
+                out.append(b | 0x80)
+            else:
+                out.append(b)
+                break
+    return bytes(out)
+
+
+def read_varints(buf, n, pos=0):
+    vals = []
+    for _ in range(n):
+        u, sh = 0, 0
+        while True:
+            b = int(buf[pos])
+            pos += 1
+            u |= (b & 0x7F) << sh
+            sh += 7
+            if not b & 0x80:
+                break
+        vals.append(_unzz(u))
+    return vals, pos
+
+
+def _xform_encode(M):
+    """index_to_world -> (mode, float64s): 0 full 4x4, 1 affine (12), 2 axis scales + translation
+    (6), 3 uniform scale + translation (4). Exact: the decoder rebuilds the same float64s."""
+    M = np.asarray(M, np.float64).reshape(4, 4)
+    if not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
+        return 0, M.reshape(16)
+    L = M[:3, :3]
+    if np.array_equal(L, np.diag(np.diag(L))):
+        d = np.diag(L)
+        if d[0] == d[1] == d[2]:
+            return 3, np.array([d[0], *M[:3, 3]])
+        return 2, np.array([*d, *M[:3, 3]])
+    return 1, M[:3].reshape(12)
+
+
+def _xform_decode(mode, f):
+    if mode == 0:
+        return f[:16].reshape(4, 4).copy()
+    M = np.eye(4)
+    if mode == 1:
+        M[:3] = f[:12].reshape(3, 4)
+    elif mode == 2:
+        M[:3, :3] = np.diag(f[:3])
+        M[:3, 3] = f[3:6]
+    else:
+        M[:3, :3] = np.eye(3) * f[0]
+        M[:3, 3] = f[1:4]
+    return M
+
+
+_XFORM_N = {0: 16, 1: 12, 2: 6, 3: 4}
 
 
 def _bitlen(x: int) -> int:
@@ -64,7 +137,7 @@ def _enc_coords(L, name):
     w = max(_bitlen(d - 1) for d in dims)
     rel = L - lmin
     use_bitmap = int(np.prod(dims)) <= len(L) * 3 * w
-    hdr = np.array([0 if use_bitmap else 1, *lmin, *dims, w], np.int64)
+    hdr = np.frombuffer(varints([0 if use_bitmap else 1, *lmin, *dims, w]), np.uint8).copy()
     if use_bitmap:
         bm = np.zeros(int(np.prod(dims)), np.uint8)
         bm[np.ravel_multi_index(rel.T, dims)] = 1
@@ -74,6 +147,8 @@ def _enc_coords(L, name):
 
 def _dec_coords(enc, name, n):
     hdr = enc[name + "_hdr"]
+    if hdr.dtype == np.uint8:  # version 2: varints
+        hdr = np.array(read_varints(hdr, 8)[0], np.int64)
     lmin, dims, w = hdr[1:4], tuple(int(d) for d in hdr[4:7]), int(hdr[7])
     if hdr[0] == 0:
         bm = np.unpackbits(enc[name + "_bitmap"], bitorder="little", count=int(np.prod(dims)))
@@ -98,10 +173,7 @@ def encode_compact(g: GaussianSet) -> dict:
     meta.update(version=VERSION, n=g.count, n_leaf=nl, n_tile=ng - nl, paper=int(g.weights == "paper"),
                 level_set=int(g.grid_class == "level_set"),
                 **{"class": _CLASSES.index(g.grid_class) if g.grid_class in _CLASSES else 3})
-    enc = {"sigma_scale": np.array([g.sigma_scale], np.float64),
-           "index_to_world": np.asarray(g.index_to_world, np.float64).reshape(16),
-           "background": np.array([g.background], np.float32),
-           "lod": np.frombuffer(g.lod.encode(), np.uint8).copy()}
+    enc = {}
     # -- leaf origins
     lo = g.group_origins[:nl].astype(np.int64)
     if nl:
@@ -192,12 +264,53 @@ def encode_compact(g: GaussianSet) -> dict:
                 float(np.max(np.abs(v16.astype(np.float64) - v))) <= VALUE_TOL * rng)
             meta["value_mode"] = 2 if ok else 3
             enc["values"] = v16 if ok else v.astype(np.float32)
-    enc["meta"] = np.array([int(meta[k]) for k in _META], np.int64)  # 8 B x 28: fixed cost
+    # -- amplitudes: derived from sigma and V; a refined set stores its quantized factors
+    meta.update(amp_mode=0, amp_cmin=0, w_amp=0)
+    if g.count and g.weights == "field":
+        a0 = amplitudes64(g.sigmas, _true_voxels(g), "field")
+        if not np.array_equal(a0.astype(np.float32), g.amplitudes):
+            c = quantize_factors(g.amplitudes.astype(np.float64) / a0)
+            if np.array_equal((a0 * factors_from_codes(c)).astype(np.float32), g.amplitudes):
+                cmin = int(c.min())
+                meta.update(amp_mode=1, amp_cmin=cmin, w_amp=_bitlen(int(c.max()) - cmin))
+                enc["amp_codes"] = pack(c - cmin, meta["w_amp"])
+            else:  # amplitudes edited by hand: stored as they are
+                meta["amp_mode"] = 2
+                enc["amp_raw"] = g.amplitudes.astype(np.float32)
+    elif g.count and not np.all(g.amplitudes == 1):
+        meta["amp_mode"] = 2
+        enc["amp_raw"] = g.amplitudes.astype(np.float32)
+    # -- header: varints, then the transform and scalars as float64/float32 bytes, then the LOD
+    xm, xf = _xform_encode(g.index_to_world)
+    meta["xform_mode"] = xm
+    lod = g.lod.encode()
+    head = varints([int(meta[k]) for k in _META2] + [len(lod)]) + lod
+    floats = np.concatenate([[np.float64(g.sigma_scale)], xf]).astype("<f8").tobytes()
+    head += floats + np.array([g.background], "<f4").tobytes()
+    enc["header"] = np.frombuffer(head, np.uint8).copy()
     return enc
 
 
 def decode_compact(enc: dict) -> GaussianSet:
-    meta = dict(zip(_META, (int(x) for x in enc["meta"])))
+    if "header" in enc:
+        head = bytes(np.asarray(enc["header"], np.uint8))
+        vals, pos = read_varints(head, len(_META2) + 1)
+        meta = dict(zip(_META2, vals[:-1]))
+        lod = head[pos:pos + vals[-1]].decode()
+        pos += vals[-1]
+        nf = 1 + _XFORM_N[meta["xform_mode"]]
+        fl = np.frombuffer(head[pos:pos + 8 * nf], "<f8").astype(np.float64)
+        pos += 8 * nf
+        scale = float(fl[0])
+        i2w = _xform_decode(meta["xform_mode"], fl[1:])
+        background = float(np.frombuffer(head[pos:pos + 4], "<f4")[0])
+    else:  # version 1
+        meta = dict(zip(_META, (int(x) for x in enc["meta"])))
+        meta.update(amp_mode=0)
+        lod = bytes(enc["lod"]).decode()
+        scale = float(enc["sigma_scale"][0])
+        i2w = enc["index_to_world"].reshape(4, 4).copy()
+        background = float(enc["background"][0])
     n, nl, nt = meta["n"], meta["n_leaf"], meta["n_tile"]
     lmin = np.array([meta["lmin_x"], meta["lmin_y"], meta["lmin_z"]], np.int64)
     dims = (meta["ldim_x"], meta["ldim_y"], meta["ldim_z"])
@@ -231,10 +344,9 @@ def decode_compact(enc: dict) -> GaussianSet:
     if meta["v_mode"] == 1:
         ex = np.unpackbits(enc["v_flags"], bitorder="little", count=ml).astype(bool)
         vox[ex] = unpack(enc["v_explicit"], meta["w_v"], int(ex.sum()))
-    scale = float(enc["sigma_scale"][0])
     weights = "paper" if meta["paper"] else "field"
     sig = sigmas_from_codes(codes, scale)
-    amp = amplitudes(sig, vox, weights)
+    amp = amplitudes64(sig, vox, weights)
     # tiles: sigma, amplitude and voxels follow from the edge, like a Low leaf (bbox rule)
     if nt:
         lv = (np.full(nt, meta["tile_const"] - 1, np.int64) if meta["tile_const"]
@@ -246,10 +358,15 @@ def decode_compact(enc: dict) -> GaussianSet:
         c2 = np.concatenate([c2, np.repeat((ts - 1)[:, None], 3, 1)])
         codes = np.concatenate([codes, tcodes])
         sig = np.concatenate([sig, tsig])
-        amp = np.concatenate([amp, amplitudes(tsig, tvox_true, weights)])
+        amp = np.concatenate([amp, amplitudes64(tsig, tvox_true, weights)])
         vox = np.concatenate([vox, np.minimum(ts ** 3, np.iinfo(np.int32).max)])
         origins = np.concatenate([origins, (_dec_coords(enc, "tile", nt) << 3).astype(np.int32)])
     m_all = ml + nt
+    if meta["amp_mode"] == 1:
+        amp = amp * factors_from_codes(unpack(enc["amp_codes"], meta["w_amp"], m_all) + meta["amp_cmin"])
+    amp = amp.astype(np.float32)
+    if meta["amp_mode"] == 2:
+        amp = np.asarray(enc["amp_raw"], np.float32).copy()
     vm = meta["value_mode"]
     if vm == 0:
         vals = np.ones(m_all, np.float32)
@@ -265,7 +382,5 @@ def decode_compact(enc: dict) -> GaussianSet:
         group_origins=origins.reshape(-1, 3), group_start=gstart, offsets=offsets.astype(np.float32),
         sigmas=sig.astype(np.float32), values=vals.astype(np.float32), amplitudes=amp.astype(np.float32),
         voxels=vox.astype(np.int32), grid_class=_CLASSES[meta["class"]],
-        lod=bytes(enc["lod"]).decode(), weights=weights,
-        index_to_world=enc["index_to_world"].reshape(4, 4).copy(),
-        background=float(enc["background"][0]), n_leaf_groups=nl, size_codes=codes.astype(np.int32),
+        lod=lod, weights=weights, index_to_world=i2w, background=background, n_leaf_groups=nl, size_codes=codes.astype(np.int32),
         sigma_scale=scale, params={})

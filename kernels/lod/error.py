@@ -191,15 +191,15 @@ def _cells(grid, gset):
             np.concatenate(cw), is_ls)
 
 
-def field_error(grid, gset, k=DEFAULT_K) -> dict:
-    t0 = time.perf_counter()
+def setup(grid, gset, k=DEFAULT_K):
+    """Cells (sorted by key), the (cell, Gaussian) pair lists and the Gaussians' geometry: all that
+    the evaluation needs except the weights (so an amplitude refinement can reuse it)."""
     corg, cmask, cref, cw, is_ls = _cells(grid, gset)
     keys = ((corg[:, 0] >> 3) + _OFF << 42) | ((corg[:, 1] >> 3) + _OFF << 21) | ((corg[:, 2] >> 3) + _OFF)
     srt = np.argsort(keys, kind="stable")
     keys, corg, cmask, cref, cw = keys[srt], corg[srt], cmask[srt], cref[srt], cw[srt]
     cent = gset.centers()
     sig = gset.sigmas.astype(np.float64)
-    w = gset.values.astype(np.float64) * gset.amplitudes.astype(np.float64)
     kk = float(k)
     cnt = _count_pairs(cent, sig, kk, keys, corg)
     start = np.zeros(len(cnt) + 1, np.int64)
@@ -211,6 +211,16 @@ def field_error(grid, gset, k=DEFAULT_K) -> dict:
     pg = pg[o]
     cstart = np.zeros(len(corg) + 1, np.int64)
     np.cumsum(np.bincount(pc, minlength=len(corg)), out=cstart[1:])
+    return dict(corg=corg, cmask=cmask, cref=cref, cw=cw, is_ls=is_ls, cstart=cstart, pg=pg,
+                cent=cent, sig=sig, k=kk)
+
+
+def field_error(grid, gset, k=DEFAULT_K) -> dict:
+    t0 = time.perf_counter()
+    st = setup(grid, gset, k)
+    corg, cmask, cref, cw, is_ls = st["corg"], st["cmask"], st["cref"], st["cw"], st["is_ls"]
+    cstart, pg, cent, sig, kk = st["cstart"], st["pg"], st["cent"], st["sig"], st["k"]
+    w = gset.values.astype(np.float64) * gset.amplitudes.astype(np.float64)
     sse, mx, npts, inter, union = _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, kk)
     n = float(np.sum(npts * cw))
     rmse = float(np.sqrt(np.sum(sse * cw) / n)) if n else 0.0
@@ -226,7 +236,7 @@ def field_error(grid, gset, k=DEFAULT_K) -> dict:
         del act
     out = dict(rmse=rmse, nrmse=rmse / den, max_abs=float(mx.max()) if len(mx) else 0.0,
                nrmse_denominator=float(den), points=int(n), k_sigma=kk,
-               pairs=int(len(pc)), seconds=time.perf_counter() - t0)
+               pairs=int(len(pg)), seconds=time.perf_counter() - t0)
     if is_ls:
         it, un = float(np.sum(inter * cw)), float(np.sum(union * cw))
         out.update(surface_iou=it / un if un else 1.0, surface_mismatch=(un - it) / n if n else 0.0,

@@ -263,9 +263,20 @@ def fill_leaves(masks, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, n
                    thr_sp, thr_v2, stack)
 
 
+# serial twins (prange runs as range): small grids skip the parallel region, whose start-up costs
+# tens of ms when the other core is busy. Same code, same results.
+SERIAL_BELOW = 4096  # leaves
+count_leaves_serial = njit(cache=True)(count_leaves.py_func)
+fill_leaves_serial = njit(cache=True)(fill_leaves.py_func)
+
+
 def leaf_boxes(masks, values, order, scheme, thr_sp=0.0, thr_v2=0.0):
     """Run a scheme over the leaves in `order`. Returns (counts per leaf, dict of box arrays)."""
     code = SCHEME_CODES[scheme] if isinstance(scheme, str) else int(scheme)
+    if len(order) < SERIAL_BELOW:
+        count_leaves, fill_leaves = count_leaves_serial, fill_leaves_serial
+    else:
+        count_leaves, fill_leaves = _count_par, _fill_par
     counts = count_leaves(masks, values, order, code, float(thr_sp), float(thr_v2))
     starts = np.zeros(len(counts) + 1, np.int64)
     np.cumsum(counts, out=starts[1:])
@@ -275,3 +286,6 @@ def leaf_boxes(masks, values, order, scheme, thr_sp=0.0, thr_v2=0.0):
     fill_leaves(masks, values, order, starts, code, float(thr_sp), float(thr_v2), out["c2"],
                 out["ext"], out["nvox"], out["val"], out["kind"])
     return counts, out
+
+
+_count_par, _fill_par = count_leaves, fill_leaves

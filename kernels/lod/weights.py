@@ -36,8 +36,18 @@ def sigmas_from_codes(codes, scale):
     return (np.float64(scale) * codes.astype(np.float64)).astype(np.float32)
 
 
-def amplitudes(sigmas, voxels, weights):
+def amplitudes64(sigmas, voxels, weights):
+    """The unrefined amplitudes in float64 (`amplitudes` is this cast to float32)."""
     if weights == "paper":
-        return np.ones(len(voxels), np.float32)
+        return np.ones(len(voxels))
     s = sigmas.astype(np.float64)
-    return (voxels.astype(np.float64) / (TWO_PI_32 * s[:, 0] * s[:, 1] * s[:, 2])).astype(np.float32)
+    return voxels.astype(np.float64) / (TWO_PI_32 * s[:, 0] * s[:, 1] * s[:, 2])
+
+
+def amplitudes(sigmas, voxels, weights, factors=None):
+    """float32 amplitudes; `factors` (float64, from a refinement's quantized codes) multiply the
+    float64 values before the cast, the same way in build_lod and in the decoder (bit-exact)."""
+    a = amplitudes64(sigmas, voxels, weights)
+    if factors is not None:
+        a = a * factors
+    return a.astype(np.float32)
