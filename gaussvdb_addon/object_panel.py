@@ -1,6 +1,13 @@
-"""Object properties panel: source, LODs held, Viewport/Render LOD, per-LOD figures."""
+"""Object properties panel: source, class, LODs held, Viewport/Render LOD, per-LOD figures, Reload."""
 
 import bpy
+
+
+def _fmt_bytes(n):
+    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{int(n)} B"
 
 
 class GAUSSVDB_PT_object(bpy.types.Panel):
@@ -18,10 +25,35 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
         settings = context.object.gaussvdb
         layout = self.layout
         layout.use_property_split = True
-        layout.prop(settings, "source_file")
-        layout.prop(settings, "grid_name")
-        layout.prop(settings, "viewport_lod")
-        layout.prop(settings, "render_lod")
+        layout.use_property_decorate = False
+        col = layout.column()
+        col.prop(settings, "source_file")
+        row = col.row()
+        row.enabled = False
+        row.prop(settings, "grid_name")
+        info = col.column(align=True)
+        info.label(text=f"Class: {settings.grid_class.replace('_', ' ')}"
+                        f" ({settings.value_type or 'float'}), {settings.weights} weights")
+        info.label(text=f"LODs held: {settings.lods.replace(',', ', ')}")
+        col = layout.column(align=True)
+        col.prop(settings, "viewport_lod", text="Viewport")
+        col.prop(settings, "render_lod", text="Render")
+        layout.operator("gaussvdb.reload", icon="FILE_REFRESH")
+
+        stats = settings.stats().get("lods", [])
+        if not stats:
+            return
+        box = layout.box()
+        grid = box.grid_flow(row_major=True, columns=5, even_columns=True, align=True)
+        for head in ("LOD", "Gaussians", "Memory", "NRMSE", "Time"):
+            grid.label(text=head)
+        for s in stats:
+            grid.label(text=s.get("label", s.get("lod", "?")))
+            grid.label(text=f"{s.get('count', 0):,}")
+            grid.label(text=_fmt_bytes(s.get("bytes", 0)))
+            nrmse = s.get("nrmse")
+            grid.label(text="-" if nrmse is None else f"{100 * nrmse:.2f}%")
+            grid.label(text=f"{s.get('seconds', 0.0):.2f} s")
 
 
 CLASSES = (GAUSSVDB_PT_object,)

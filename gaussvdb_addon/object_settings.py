@@ -1,23 +1,47 @@
-"""Per-object settings (Object.gaussvdb): where the Gaussians came from and which LOD to draw."""
+"""Per-object settings (Object.gaussvdb): where the Gaussians came from and which LOD to draw.
+
+The point attributes themselves are described in importer.py (and README "Point-cloud layout");
+``lods`` lists the LODs held in gs_lod order, ``viewport_lod``/``render_lod`` pick one of them like
+the Subdivision modifier's viewport and render levels.
+"""
 
 import json
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, PointerProperty, StringProperty
+from bpy.props import (
+    BoolProperty,
+    EnumProperty,
+    FloatVectorProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
-LOD_LABELS = {"low": "Low", "medium": "Medium", "high": "High"}
+LOD_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
+              "merged": "Merged"}
 
 
 def _tag(self, context):
     # Add-on properties fire no depsgraph update by themselves (Blender #62325).
     self.id_data.update_tag()
+    if context is not None and getattr(context, "area", None) is not None:
+        context.area.tag_redraw()
+
+
+# Enum item callbacks must keep their strings alive while Blender holds them: one cached list per
+# distinct `lods` string (a handful per file), never rebuilt for the same string.
+_LOD_ITEM_CACHE = {}
 
 
 def lod_items(self, context):
-    held = [name for name in self.lods.split(",") if name] or ["medium"]
-    # Enum callbacks must keep their strings alive while Blender holds them.
-    lod_items.cache = [(n, LOD_LABELS.get(n, n.title()), f"{n} LOD") for n in held]
-    return lod_items.cache
+    key = self.lods or "medium"
+    items = _LOD_ITEM_CACHE.get(key)
+    if items is None:
+        held = [name for name in key.split(",") if name] or ["medium"]
+        items = [(n, LOD_LABELS.get(n, n.title()), f"Draw the {LOD_LABELS.get(n, n)} LOD", i)
+                 for i, n in enumerate(held)]
+        _LOD_ITEM_CACHE[key] = items
+    return items
 
 
 class GaussVDBObjectSettings(bpy.types.PropertyGroup):
@@ -25,12 +49,24 @@ class GaussVDBObjectSettings(bpy.types.PropertyGroup):
     source_file: StringProperty(name="Source File", subtype="FILE_PATH")
     grid_name: StringProperty(name="Grid")
     grid_class: StringProperty(name="Class")
-    lods: StringProperty(name="LODs Held", description="Comma-separated LOD presets stored on the object")
+    value_type: StringProperty(name="Value Type")
+    lods: StringProperty(name="LODs Held",
+                         description="Comma-separated LOD presets stored on the object, in gs_lod order")
     weights: StringProperty(name="Weights", default="field")
     level_set_band: BoolProperty(name="Zero-Crossing Band Only", default=True)
     vector_magnitude: BoolProperty(name="Vector Magnitude", default=False)
-    viewport_lod: EnumProperty(name="Viewport LOD", items=lod_items, update=_tag)
-    render_lod: EnumProperty(name="Render LOD", items=lod_items, update=_tag)
+    viewport_lod: EnumProperty(name="Viewport LOD", items=lod_items, update=_tag,
+                               description="LOD drawn in the viewport")
+    render_lod: EnumProperty(name="Render LOD", items=lod_items, update=_tag,
+                             description="LOD used for final renders")
+    index_to_world: StringProperty(name="Index to World",
+                                   description="The grid's transform at import: 16 float64 numbers, "
+                                               "row-major 4x4, column-vector form (exact; Blender "
+                                               "float properties are float32)")
+    leaf_box_min: FloatVectorProperty(name="Leaf Box Min", size=3,
+                                      description="Index-space box of the grid's leaves and tiles")
+    leaf_box_max: FloatVectorProperty(name="Leaf Box Max", size=3)
+    layout_version: IntProperty(name="Layout Version", default=0)
     stats_json: StringProperty(name="Statistics", description="Per-LOD figures as JSON")
 
     def stats(self) -> dict:

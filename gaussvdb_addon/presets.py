@@ -1,17 +1,78 @@
-"""Presets shipped in presets/ (LOD presets for the import operator, colormap presets)."""
+"""Presets shipped in presets/ and the menus/operators (AddPresetBase) that list, load and save them.
+
+- Import LOD presets: presets/operator/gaussvdb.import_vdb/*.py, the folder Blender's own operator
+  presets use for `gaussvdb.import_vdb` (bl_options PRESET), so the file browser's preset menu and
+  ours list the same files. Each sets `op.lods`, `op.weights`, `op.level_set_band`.
+- Colormap presets: presets/gaussvdb/colormap/*.py, each sets `scene.gaussvdb.colormap`.
+
+`bpy.utils.register_preset_path(EXTENSION_ROOT)` adds the shipped folder to the preset search path; presets
+the user saves go to the user's scripts/presets/<subdir> (AddPresetBase does that) and show up beside.
+"""
 
 import os
 
 import bpy
+from bl_operators.presets import AddPresetBase
 
-PRESET_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "presets")
+# register_preset_path() takes the folder that HOLDS "presets/": the extension's root.
+EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PRESET_DIR = os.path.join(EXTENSION_ROOT, "presets")
+IMPORT_PRESET_SUBDIR = "operator/gaussvdb.import_vdb"
+COLORMAP_PRESET_SUBDIR = "gaussvdb/colormap"
 
-CLASSES = ()
+
+class GAUSSVDB_MT_import_presets(bpy.types.Menu):
+    bl_label = "LOD Presets"
+    preset_subdir = IMPORT_PRESET_SUBDIR
+    preset_operator = "script.execute_preset"
+    draw = bpy.types.Menu.draw_preset
+
+
+class GAUSSVDB_OT_import_preset_add(AddPresetBase, bpy.types.Operator):
+    """Add or remove an import LOD preset"""
+
+    bl_idname = "gaussvdb.import_preset_add"
+    bl_label = "Add Import LOD Preset"
+    preset_menu = "GAUSSVDB_MT_import_presets"
+    preset_subdir = IMPORT_PRESET_SUBDIR
+    preset_defines = ["op = bpy.context.active_operator"]
+    preset_values = ["op.lods", "op.weights", "op.level_set_band", "op.vector_magnitude",
+                     "op.measure_error"]
+
+
+class GAUSSVDB_MT_colormap_presets(bpy.types.Menu):
+    bl_label = "Colormap Presets"
+    preset_subdir = COLORMAP_PRESET_SUBDIR
+    preset_operator = "script.execute_preset"
+    draw = bpy.types.Menu.draw_preset
+
+
+class GAUSSVDB_OT_colormap_preset_add(AddPresetBase, bpy.types.Operator):
+    """Add or remove a colormap preset"""
+
+    bl_idname = "gaussvdb.colormap_preset_add"
+    bl_label = "Add Colormap Preset"
+    preset_menu = "GAUSSVDB_MT_colormap_presets"
+    preset_subdir = COLORMAP_PRESET_SUBDIR
+    preset_defines = ["settings = bpy.context.scene.gaussvdb"]
+    preset_values = ["settings.colormap"]
+
+
+def draw_colormap_presets(layout):
+    """One row: the colormap preset menu with add/remove buttons (for the render panel)."""
+    row = layout.row(align=True)
+    row.menu("GAUSSVDB_MT_colormap_presets", text=GAUSSVDB_MT_colormap_presets.bl_label)
+    row.operator("gaussvdb.colormap_preset_add", text="", icon="ADD")
+    row.operator("gaussvdb.colormap_preset_add", text="", icon="REMOVE").remove_active = True
+
+
+CLASSES = (GAUSSVDB_MT_import_presets, GAUSSVDB_OT_import_preset_add,
+           GAUSSVDB_MT_colormap_presets, GAUSSVDB_OT_colormap_preset_add)
 
 
 def register_extra():
-    bpy.utils.register_preset_path(PRESET_DIR)
+    bpy.utils.register_preset_path(EXTENSION_ROOT)
 
 
 def unregister_extra():
-    bpy.utils.unregister_preset_path(PRESET_DIR)
+    bpy.utils.unregister_preset_path(EXTENSION_ROOT)

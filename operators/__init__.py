@@ -1,8 +1,8 @@
 """Blender operators. Thin: each one calls a plain function that scripts and the CLI call too."""
 
-from . import import_vdb
+from . import import_vdb, reload
 
-CLASSES = (*import_vdb.CLASSES,)
+CLASSES = (*import_vdb.CLASSES, *reload.CLASSES)
 
 
 def register_extra():

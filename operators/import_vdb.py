@@ -1,14 +1,30 @@
-"""File > Import > OpenVDB as Gaussians (.vdb), and drag-and-drop of .vdb files onto the viewport."""
+"""File > Import > OpenVDB as Gaussians (.vdb), and drag-and-drop of .vdb files onto the viewport.
+
+Thin: the work is in gaussvdb_addon/importer.py (convert everything first, then create objects).
+
+Long imports in the UI: `execute` runs the conversion one step (one grid x one LOD) per timer event
+as a modal operator, with the window manager's progress bar; Esc between steps cancels and leaves the
+scene as it was (no datablock exists before the last step). Headless (`blender -b`, the bpy module,
+scripts) and Redo run the same steps synchronously, with no event loop to listen to.
+"""
+
+import os
 
 import bpy
 from bpy.props import BoolProperty, CollectionProperty, EnumProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
+# Mirrors kernels.lod.PRESETS / PRESET_LABELS (kept static: registration must not import numba;
+# tests/test_import_operator.py checks they agree).
 LOD_ITEMS = (
     ("low", "Low", "One Gaussian per leaf (the paper's Low LOD)"),
     ("medium", "Medium", "4^3 blocks in dense leaves, 2^3 blocks or voxels in sparse ones"),
     ("high", "High", "2^3 blocks in dense leaves, one Gaussian per voxel in sparse ones"),
+    ("variance", "Variance", "Variance-based clustering inside each leaf (recursive bisection)"),
+    ("merged", "Merged", "High plus merging similar neighbouring blocks across leaves"),
 )
+# Files larger than this run as a modal (cancellable) job in the UI; smaller ones finish at once.
+MODAL_MIN_BYTES = 4 << 20
 
 
 class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
@@ -20,34 +36,136 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
 
     filename_ext = ".vdb"
     filter_glob: StringProperty(default="*.vdb", options={"HIDDEN"})
-    directory: StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
-    files: CollectionProperty(type=bpy.types.OperatorFileListElement, options={"HIDDEN", "SKIP_SAVE"})
+    directory: StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE", "SKIP_PRESET"})
+    files: CollectionProperty(type=bpy.types.OperatorFileListElement,
+                              options={"HIDDEN", "SKIP_SAVE", "SKIP_PRESET"})
 
-    grids: StringProperty(name="Grids", default="",
+    grids: StringProperty(name="Grids", default="", options={"SKIP_PRESET"},
                           description="Comma-separated grid names (empty: every scalar grid)")
     lods: EnumProperty(name="LODs", items=LOD_ITEMS, options={"ENUM_FLAG"}, default={"medium"},
-                       description="LOD presets stored on each object")
+                       description="LOD presets stored on each object (shift-click for several)")
     weights: EnumProperty(name="Weights", default="field", items=(
         ("field", "Field", "Normalized kernels times the volume they stand for (exact fields)"),
         ("paper", "Paper", "The paper's weights: sigma = half extent, value as peak")))
     level_set_band: BoolProperty(name="Zero-Crossing Band Only", default=True,
                                  description="Level sets: keep only Gaussians whose voxels straddle the surface")
-    vector_magnitude: BoolProperty(name="Vector Grids as Magnitude", default=False)
+    vector_magnitude: BoolProperty(name="Vector Grids as Magnitude", default=False,
+                                   description="Import vec3 grids (velocity) as their magnitude")
+    measure_error: BoolProperty(name="Measure Field Error", default=True,
+                                description="Compare each LOD's Gaussian field with the voxels (shown in the panel)")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        row = layout.row(align=True)
+        row.menu("GAUSSVDB_MT_import_presets", text=bpy.types.GAUSSVDB_MT_import_presets.bl_label)
+        row.operator("gaussvdb.import_preset_add", text="", icon="ADD")
+        row.operator("gaussvdb.import_preset_add", text="", icon="REMOVE").remove_active = True
+        layout.prop(self, "grids")
+        col = layout.column(heading="LODs")
+        col.prop(self, "lods")
+        layout.prop(self, "weights")
+        layout.prop(self, "level_set_band")
+        layout.prop(self, "vector_magnitude")
+        layout.prop(self, "measure_error")
+
+    def invoke(self, context, event):
+        # Drag-and-drop (FileHandler) sets the path: show the options, then import.
+        return self.invoke_popup(context)
+
+    def _options(self):
+        from ..gaussvdb_addon import importer
+
+        return dict(grids=importer.split_names(self.grids), lods=sorted(self.lods),
+                    weights=self.weights, level_set_band=self.level_set_band,
+                    vector_magnitude=self.vector_magnitude, compute_error=self.measure_error)
 
     def execute(self, context):
         from ..gaussvdb_addon import importer
 
         paths = importer.selected_paths(self.filepath, self.directory, self.files)
+        big = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) >= MODAL_MIN_BYTES
+        if big and context.window is not None and not bpy.app.background and not self.options.is_repeat:
+            return self._start_modal(context, paths)
         try:
-            objects, message = importer.import_files(
-                context, paths, grids=importer.split_names(self.grids), lods=sorted(self.lods),
-                weights=self.weights, level_set_band=self.level_set_band,
-                vector_magnitude=self.vector_magnitude, progress=context.window_manager)
+            _objects, message = importer.import_files(context, paths, progress=context.window_manager,
+                                                     **self._options())
         except importer.ImportError_ as err:
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}
         self.report({"INFO"}, message)
         return {"FINISHED"}
+
+    # -- the modal path (UI only) ----------------------------------------------------------------
+    def _start_modal(self, context, paths):
+        from ..gaussvdb_addon import importer
+
+        opts = self._options()
+        self._skipped = []
+        self._jobs = [importer.convert_steps(p, opts["grids"], opts["lods"], opts["weights"],
+                                             opts["level_set_band"], opts["vector_magnitude"],
+                                             None, opts["compute_error"], self._skipped)
+                      for p in paths]
+        self._done = []
+        self._npaths = len(paths)
+        wm = context.window_manager
+        wm.progress_begin(0, 1000)
+        self._timer = wm.event_timer_add(0.01, window=context.window)
+        wm.modal_handler_add(self)
+        context.workspace.status_text_set("Importing OpenVDB as Gaussians... (Esc to cancel)")
+        return {"RUNNING_MODAL"}
+
+    def _stop_modal(self, context):
+        wm = context.window_manager
+        if self._timer is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+        for job in self._jobs:
+            job.close()
+
+    def modal(self, context, event):
+        from ..gaussvdb_addon import importer
+
+        if event.type == "ESC":
+            self._stop_modal(context)
+            self.report({"WARNING"}, "Import cancelled: nothing was created")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"RUNNING_MODAL"}  # block other input while importing (Esc still reaches us)
+        try:
+            job = self._jobs[len(self._done)]
+            try:
+                fraction, _text = next(job)
+                done_files = len(self._done) + fraction
+                context.window_manager.progress_update(int(1000 * done_files / self._npaths))
+                return {"RUNNING_MODAL"}
+            except StopIteration as stop:
+                self._done.append(stop.value)
+            if len(self._done) < self._npaths:
+                return {"RUNNING_MODAL"}
+            self._stop_modal(context)
+            objs = importer.build_objects([cg for part in self._done for cg in part], None,
+                                          {k: v for k, v in self._options().items()
+                                           if k in ("weights", "level_set_band", "vector_magnitude")})
+        except importer.ImportError_ as err:
+            self._stop_modal(context)
+            self.report({"ERROR"}, str(err))
+            return {"CANCELLED"}
+        for obj in context.view_layer.objects.selected:
+            obj.select_set(False)
+        for obj in objs:
+            obj.select_set(True)
+        if objs:
+            context.view_layer.objects.active = objs[-1]
+        self.report({"INFO"}, importer.status_message(objs, self._skipped))
+        return {"FINISHED"}
+
+    def cancel(self, context):
+        if getattr(self, "_timer", None) is not None:
+            self._stop_modal(context)
 
 
 class GAUSSVDB_FH_vdb(bpy.types.FileHandler):

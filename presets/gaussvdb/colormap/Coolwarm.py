@@ -1,0 +1,4 @@
+import bpy
+settings = bpy.context.scene.gaussvdb
+
+settings.colormap = 'coolwarm'

@@ -1,0 +1,6 @@
+import bpy
+op = bpy.context.active_operator
+
+op.lods = {'high'}
+op.weights = 'field'
+op.level_set_band = True

@@ -1,0 +1,6 @@
+import bpy
+op = bpy.context.active_operator
+
+op.lods = {'medium'}
+op.weights = 'paper'
+op.level_set_band = True
