@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -131,6 +132,7 @@ class ConvertedGrid:
     index_to_world: np.ndarray
     leaf_box: tuple  # (min, max) index-space box of the leaves and active tiles (voxel corners)
     lods: list = field(default_factory=list)  # [ConvertedLOD]
+    nonfinite_voxels: int = 0  # NaN/Inf voxels made inactive before conversion
 
     @property
     def is_level_set(self) -> bool:
@@ -200,6 +202,11 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
     for g in chosen:
         cg = ConvertedGrid(filepath, g.name, g.grid_class, g.value_type,
                            np.asarray(g.index_to_world, np.float64), _leaf_box(g))
+        # NaN/Inf are no density: such voxels become inactive, counted, and the user is warned.
+        cg.nonfinite_voxels = vdb.sanitize_nonfinite(g)
+        if cg.nonfinite_voxels:
+            warnings.warn(f"{base}: grid {g.name!r} has {cg.nonfinite_voxels:,} non-finite (NaN/Inf) "
+                          "voxels; they were made inactive", RuntimeWarning, stacklevel=2)
         for name in lods:
             yield 0.05 + 0.95 * k / steps, f"{g.name}: {lod_label(name)} LOD"
             k += 1
@@ -425,7 +432,7 @@ def _settings_to_object(obj, cg, stats, options):
     st.leaf_box_min = [float(v) for v in cg.leaf_box[0]]
     st.leaf_box_max = [float(v) for v in cg.leaf_box[1]]
     st.layout_version = LAYOUT_VERSION
-    st.stats_json = json.dumps({"lods": stats})
+    st.stats_json = json.dumps({"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels})
     names = [cl.name for cl in cg.lods]
     # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
     st.viewport_lod = names[0]
@@ -545,6 +552,9 @@ def status_message(objs, skipped=()) -> str:
         if all(e is not None for e in errs):
             text += ", field NRMSE " + " / ".join(f"{100 * e:.1f}%" for e in errs)
         text += f", {_fmt_bytes(sum(s['bytes'] for s in stats))}"
+        bad = json.loads(obj.gaussvdb.stats_json or "{}").get("nonfinite_voxels", 0)
+        if bad:
+            text += f", {bad:,} NaN/Inf voxels made inactive"
         parts.append(text)
     if skipped:
         parts.append("skipped " + ", ".join(sorted({str(n) for n, _ in skipped})))

@@ -160,7 +160,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             obj.select_set(True)
         if objs:
             context.view_layer.objects.active = objs[-1]
-        self.report({"INFO"}, importer.status_message(objs, self._skipped))
+        message = importer.status_message(objs, self._skipped)
+        self.report({"WARNING"} if "NaN/Inf" in message else {"INFO"}, message)
         return {"FINISHED"}
 
     def cancel(self, context):

@@ -208,9 +208,6 @@ def test_nan_inf_voxels_never_crash_or_half_build(bpy_module, scene, tmp_path):
         assert 0 <= out["Combined"][..., 3].min() and out["Combined"][..., 3].max() <= 1 + 1e-6
 
 
-@pytest.mark.xfail(strict=True, reason="bug: NaN/Inf voxels are neither refused nor sanitized with a "
-                   "counted warning; they reach the Gaussians (the 'low' leaf mean of +Inf and -Inf is "
-                   "NaN, the whole leaf vanishes) and the Value pass is Inf/NaN")
 def test_nan_inf_voxels_sanitized_or_refused(bpy_module, scene, tmp_path):
     """The issue allows two outcomes: refused with a clear message naming the problem, or imported
     with a warning that counts the bad voxels (3 here), finite Gaussians and a finite image."""

@@ -18,7 +18,7 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
     import numpy as np
 
     from kernels.lod import build_lod, encode_compact, encoded_nbytes, field_error, paper_model_bytes
-    from kernels.vdb import read_vdb
+    from kernels.vdb import read_vdb, sanitize_nonfinite
 
     t0 = time.perf_counter()
     vdb = read_vdb(path, grids=[grid] if grid else None)
@@ -29,6 +29,10 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
     if grid is None:  # first grid with active voxels, else the first one
         grids = [g for g in grids if g.active_voxels] or grids
     g = grids[0]
+    nonfinite = sanitize_nonfinite(g)  # NaN/Inf voxels become inactive (reported below)
+    if nonfinite:
+        print(f"gaussvdb convert: warning: {nonfinite:,} NaN/Inf voxels of grid {g.name!r} made inactive",
+              file=sys.stderr)
     t0 = time.perf_counter()
     gs = build_lod(g, lod, weights, level_set_band=level_set_band, **thresholds)
     seconds_convert = time.perf_counter() - t0
@@ -45,6 +49,7 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
         "mvoxels_per_second": g.active_voxels / (seconds_read + seconds_convert) / 1e6,
         "kept_voxels": int(gs.voxels.astype(np.int64).sum()),
         "level_set_band": bool(gs.params.get("level_set_band", False)),
+        "nonfinite_voxels": nonfinite,
     }
     if error:
         e = field_error(g, gs)

@@ -7,6 +7,7 @@
 from .errors import VDBFormatError
 from .griddata import GridData, VDBFile
 from .reader import DEFAULT_MAX_BYTES, estimate_bytes, read_topology, read_vdb
+from .sanitize import count_nonfinite, sanitize_nonfinite
 
 __all__ = ["read_vdb", "read_topology", "estimate_bytes", "VDBFormatError", "GridData", "VDBFile",
-           "DEFAULT_MAX_BYTES"]
+           "DEFAULT_MAX_BYTES", "count_nonfinite", "sanitize_nonfinite"]

@@ -1,0 +1,46 @@
+"""NaN/Inf voxels are made inactive before conversion, counted exactly, and nothing else changes."""
+
+import numpy as np
+
+from kernels.lod import build_lod
+from kernels.vdb import count_nonfinite, read_vdb, sanitize_nonfinite
+from tests.vdb_fixtures import openvdb, write_grid
+
+
+def write_with_bad_voxels(path):
+    ov = openvdb()
+    g = ov.FloatGrid()
+    g.name = "density"
+    acc = g.getAccessor()
+    for ijk in np.ndindex(10, 9, 8):
+        acc.setValueOn(ijk, 0.5)
+    for ijk, v in (((1, 1, 1), np.nan), ((2, 3, 4), np.inf), ((9, 8, 7), -np.inf)):
+        acc.setValueOn(ijk, float(v))
+    ov.write(str(path), grids=[g])
+    return path
+
+
+def test_nonfinite_voxels_deactivated_and_counted(tmp_path):
+    vals = np.empty((10, 9, 8))
+    grid = read_vdb(write_with_bad_voxels(tmp_path / "bad.vdb")).grids[0]
+    before = grid.active_voxels
+    masks_before = grid.leaf_masks.copy()
+    assert count_nonfinite(grid) == 3
+    assert sanitize_nonfinite(grid) == 3
+    assert grid.active_voxels == before - 3 == vals.size - 3
+    assert count_nonfinite(grid) == 0 and sanitize_nonfinite(grid) == 0
+    # exactly three bits cleared, all of them where the values are not finite
+    cleared = np.unpackbits((masks_before & ~grid.leaf_masks).view(np.uint8), bitorder="little")
+    assert cleared.sum() == 3
+    assert not np.isfinite(grid.leaf_values.reshape(-1)[cleared.astype(bool)]).any()
+    for lod in ("low", "medium", "high"):
+        gs = build_lod(grid, lod)
+        assert np.isfinite(gs.values).all() and np.isfinite(gs.amplitudes).all()
+        assert int(gs.voxels.sum()) == vals.size - 3
+
+
+def test_finite_grid_untouched(tmp_path):
+    grid = read_vdb(write_grid(tmp_path / "ok.vdb", np.ones((8, 8, 8), np.float32))).grids[0]
+    masks = grid.leaf_masks
+    assert sanitize_nonfinite(grid) == 0
+    assert grid.leaf_masks is masks
