@@ -1,10 +1,11 @@
 """`./gaussvdb demo`: import the bundled sample at every LOD preset and print the per-LOD table.
 
-    ./gaussvdb demo [--file F.vdb] [--grids density,temperature] [--weights field|paper] [--json]
+    ./gaussvdb demo [--file F.vdb] [--grids density,temperature] [--weights field|paper]
+                    [--size 320x240] [--out DIR] [--json]
 
 Runs in real Blender (the bpy module) with this working tree enabled as the extension
 (tools/blender_session.py), through the same importer the File > Import operator calls.
-Renders: `render_pngs` below is the hook where the engine's PNG renders of each LOD go.
+Then it renders the first grid at every LOD (particles mode, viridis) to PNGs in out/demo/.
 """
 
 import argparse
@@ -23,14 +24,41 @@ def parse(argv):
     ap.add_argument("--file", default=SAMPLE, help="a .vdb file (default: the bundled sample)")
     ap.add_argument("--grids", default="", help="comma-separated grid names (default: every scalar grid)")
     ap.add_argument("--weights", default="field", choices=("field", "paper"))
+    ap.add_argument("--size", default="320x240", help="PNG size WxH of the renders (0: no renders)")
+    ap.add_argument("--out", default=os.path.join(ROOT, "out", "demo"), help="folder for the PNGs")
     ap.add_argument("--json", action="store_true", help="print the table as JSON")
     return ap.parse_args(argv)
 
 
 def render_pngs(bpy, objs, args) -> list:
-    """Hook for the engine: render each imported object at each LOD to PNGs; returns the paths.
-    (Filled in by the render side; the import demo prints its table without it.)"""
-    return []
+    """Render the first imported grid at every LOD it holds (particles mode, viridis); returns paths."""
+    if args.size == "0" or not objs:
+        return []
+    from blender_session import addon_module
+
+    import cmd_render
+
+    final_render = addon_module("gaussvdb_addon.final_render")
+    obj = objs[0]
+    for other in objs[1:]:
+        other.hide_render = True
+    width, height = (int(v) for v in args.size.lower().split("x"))
+    opts = argparse.Namespace(width=width, height=height, transparent=False, mode="particles",
+                              colormap="viridis", threads=0, density=None, lod=obj.gaussvdb.render_lod)
+    scene = cmd_render.build_scene(bpy, [obj], opts)
+    os.makedirs(args.out, exist_ok=True)
+    paths = []
+    for name in importer_lods(obj):
+        obj.gaussvdb.render_lod = name
+        path = os.path.join(os.path.abspath(args.out), f"{obj.gaussvdb.grid_name}_{name}.png")
+        stats = final_render.render_scene_to_file(scene, path)
+        paths.append(f"{path} ({stats.get('gaussians', 0):,} Gaussians, "
+                     f"{stats.get('seconds_render', 0.0):.2f} s)")
+    return paths
+
+
+def importer_lods(obj) -> list:
+    return [n for n in obj.gaussvdb.lods.split(",") if n]
 
 
 def run(args) -> dict:
