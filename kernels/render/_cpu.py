@@ -24,11 +24,21 @@ _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 @njit(**_jit)
 def erf_diff(u0, u1):
-    """erf(u1) - erf(u0) for u0 <= u1, stable: series for short spans, erfc for same-sign tails."""
-    h = u1 - u0
-    if abs(h) < 1e-2:
-        m = 0.5 * (u0 + u1)
-        return TWO_OVER_SQRT_PI * h * math.exp(-m * m) * (1.0 + (4.0 * m * m - 2.0) * h * h / 24.0)
+    """erf(u1) - erf(u0) for u0 <= u1 (see erf_span)."""
+    return erf_span(u0, u1, u1 - u0)
+
+
+@njit(**_jit)
+def erf_span(u0, u1, h):
+    """erf(u1) - erf(u0) for u0 <= u1, given the span h = u1 - u0 computed exactly by the caller
+    (sa * (t1 - t0): forming u1 - u0 after rounding loses short spans). Stable: a Taylor series about
+    the midpoint for short spans (h * max(1, |m|) small: error ~ (h m)^6), erfc for same-sign tails."""
+    m = 0.5 * (u0 + u1)
+    if h * max(1.0, abs(m)) < 1e-2:
+        m2 = m * m
+        h2 = h * h
+        series = 1.0 + (4.0 * m2 - 2.0) * h2 / 24.0 + (16.0 * m2 * m2 - 48.0 * m2 + 12.0) * h2 * h2 / 1920.0
+        return TWO_OVER_SQRT_PI * h * math.exp(-m2) * series
     if u0 >= 0.0:
         return math.erfc(u0) - math.erfc(u1)
     if u1 <= 0.0:
@@ -46,7 +56,8 @@ def line_integral(ox, oy, oz, dx, dy, dz, t0, t1):
     px, py, pz = ox + ts * dx, oy + ts * dy, oz + ts * dz
     q = px * px + py * py + pz * pz
     sa = math.sqrt(0.5 * a)
-    return math.exp(-0.5 * q) * math.sqrt(math.pi / (2.0 * a)) * erf_diff(sa * (t0 - ts), sa * (t1 - ts))
+    return math.exp(-0.5 * q) * math.sqrt(math.pi / (2.0 * a)) * erf_span(sa * (t0 - ts), sa * (t1 - ts),
+                                                                         sa * (t1 - t0))
 
 
 @njit(**_jit)
@@ -287,7 +298,7 @@ def seg_tau(h, ta, tb, h_ts, h_sa, h_pref, h_id, g_w, h_s, h_e):
         return 0.0
     sa = h_sa[h]
     ts = h_ts[h]
-    return g_w[h_id[h]] * h_pref[h] * erf_diff(sa * (ta - ts), sa * (tb - ts))
+    return g_w[h_id[h]] * h_pref[h] * erf_span(sa * (ta - ts), sa * (tb - ts), sa * (tb - ta))
 
 
 @njit(**_jit)
@@ -325,18 +336,22 @@ def particles_segment(st, ta, tb, act, nact, h_ts, h_sa, h_pref, h_id, g_w, g_co
         composite(st, tau, g_col[g, 0], g_col[g, 1], g_col[g, 2], g_val[g], ta, tb)
         return
     tsum = 0.0
-    spread = 0.0
-    g0 = h_id[act[0]]
+    # colour spread = largest per-channel max - min over the active set: independent of their order
+    cmin0 = cmin1 = cmin2 = INF
+    cmax0 = cmax1 = cmax2 = -INF
     for k in range(nact):
         h = act[k]
         tk = seg_tau(h, ta, tb, h_ts, h_sa, h_pref, h_id, g_w, h_s, h_e)
         tmp[k] = tk
         tsum += tk
         g = h_id[h]
-        for ch in range(3):
-            dc = abs(g_col[g, ch] - g_col[g0, ch])
-            if dc > spread:
-                spread = dc
+        cmin0 = min(cmin0, g_col[g, 0])
+        cmax0 = max(cmax0, g_col[g, 0])
+        cmin1 = min(cmin1, g_col[g, 1])
+        cmax1 = max(cmax1, g_col[g, 1])
+        cmin2 = min(cmin2, g_col[g, 2])
+        cmax2 = max(cmax2, g_col[g, 2])
+    spread = max(cmax0 - cmin0, cmax1 - cmin1, cmax2 - cmin2)
     st[7] += nact
     # mixing error ~ tau^2 x colour spread: subdivide until tau * spread <= tau_max
     nsub = 1
