@@ -601,3 +601,16 @@ def test_short_span_far_in_the_tails(m, h):
         got = _k().erf_span(u0, u1, h)
         want = mp_erf_diff(u0, u1)
         assert got >= 0.0 and rel_err(got, want) <= 1e-8, (u0, u1, got, want)
+
+
+def test_huge_gaussian_refused_with_clear_error_not_exhausted_memory():
+    """A Gaussian thousands of leaves wide (a root tile, a world scaled far past its voxels) must stop
+    the sync with a message, never allocate billions of halo-list entries."""
+    import time
+
+    big = gaussian_set([[0.0, 0.0, 0.0], [4.0, 4.0, 4.0]], [[5000.0, 5000.0, 5000.0], [1.0, 1.0, 1.0]])
+    scene = RenderScene([RenderObject(big, np.eye(4))], mode="particles")
+    t0 = time.perf_counter()
+    with pytest.raises(MemoryError, match="sigma 5000 voxels"):
+        CPUDevice().sync(scene)
+    assert time.perf_counter() - t0 < 5.0

@@ -16,6 +16,10 @@ LEAF = 8
 NODE_LEAVES = 16
 NODE = LEAF * NODE_LEAVES
 MAX_NODE_TABLE = 1 << 26  # dense node table entries per object (sparse-enough for any VDB we read)
+# Halo-list entries (Gaussian x leaf cell) per object: each costs ~40 B while the lists are built, so
+# this bounds the sync at ~1 GB. Gaussians hundreds of leaves wide (a root tile, a world scaled far
+# beyond its voxels) would otherwise list billions of cells and exhaust memory.
+MAX_HALO_ENTRIES = 25_000_000
 
 
 def gaussian_arrays(gs):
@@ -122,6 +126,13 @@ def build_gauss_accel(objects, support_k):
             chi = np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF)
             ext = chi - clo + 1
             cnt = ext[:, 0] * ext[:, 1] * ext[:, 2]
+            total = int(cnt.sum())
+            if total > MAX_HALO_ENTRIES:
+                big = int(np.argmax(cnt))
+                raise MemoryError(
+                    f"object {k}: the Gaussians' {support_k:g}-sigma supports cover {total:,} leaf cells "
+                    f"(limit {MAX_HALO_ENTRIES:,}); the largest has sigma {sig[big].max():.4g} voxels and "
+                    f"covers {int(cnt[big]):,} cells alone. Use a finer LOD or fewer, smaller Gaussians.")
             gid = np.repeat(np.arange(m, dtype=np.int64), cnt)
             first = np.repeat(np.cumsum(cnt) - cnt, cnt)
             rr = np.arange(gid.size, dtype=np.int64) - first
