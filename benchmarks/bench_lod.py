@@ -5,7 +5,7 @@ bytes per Gaussian, the paper's storage model, read and convert seconds (best of
 JIT), M active voxels/s for read + convert, field NRMSE (level sets: occupancy NRMSE and IoU).
 
   ./gaussvdb bench lod [--data DIR] [--presets low,medium,high] [--weights field] [--repeat 3]
-  /tmp/gvenv/bin/python benchmarks/bench_lod.py --data ../shared/data
+  ./gaussvdb bench lod --data ../shared/data
 DIR defaults to ../shared/data relative to the repository root.
 """
 from __future__ import annotations

@@ -86,6 +86,13 @@ class Progress:
 
 
 # -- set-up ----------------------------------------------------------------------------------------
+
+def _shown_path(path):
+    """A data folder as the report shows it: relative to the repository root, never a machine path."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    rel = os.path.relpath(os.path.abspath(path), root)
+    return rel if not os.path.isabs(rel) else os.path.basename(os.path.abspath(path))
+
 def parse(argv):
     from kernels.lod import PRESETS
     from kernels.render import MODES
@@ -346,7 +353,7 @@ def run(a):
     meta = {"when": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
                 "cpu_count": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS,
                 "threads": a.threads or None, "platform": platform.platform(), "python": platform.python_version(),
-                "data": os.path.abspath(a.data), "size": [a.width, a.height], "lods": a.lods, "modes": a.modes,
+                "data": _shown_path(a.data), "size": [a.width, a.height], "lods": a.lods, "modes": a.modes,
                 "cycles_samples": None if a.no_cycles else a.samples, "quick": a.quick, "view_direction": VIEW,
                 "colormap": COLORMAP, "reference_step": REF_STEP, "density_optical_depth": a.density,
                 "cycles": cycles_meta, "seconds_total": time.perf_counter() - t_start}

@@ -3,7 +3,7 @@ Prints one row per case: worst error found, the reference it was measured agains
 and PASS/FAIL (FAIL rows are known bugs, see the xfail marks in the tests).
 
   ./gaussvdb bench stability [--quick]
-  /tmp/gvenv/bin/python benchmarks/bench_stability.py
+  ./gaussvdb bench stability
 """
 from __future__ import annotations
 
