@@ -97,6 +97,32 @@ def _fill_pairs(cent, sig, k, keys, corg, start, out):
         _cells_of(g, cent, sig, k, keys, corg, out, start[g], True)
 
 
+@njit(cache=True, inline="always")
+def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
+    """Add to acc (512) the mixture at the voxel centres of cell c: every Gaussian listed for the
+    cell, truncated at k sigma (k2 = k^2), with separable exponentials per axis."""
+    for p in range(cstart[c], cstart[c + 1]):
+        g = pg[p]
+        for a in range(3):
+            for l in range(8):
+                d = (corg[c, a] + l - cent[g, a]) / sig[g, a]
+                q[a, l] = d * d
+                e[a, l] = np.exp(-0.5 * d * d)
+        wg = w[g]
+        for x in range(8):
+            if q[0, x] > k2:
+                continue
+            for y in range(8):
+                qxy = q[0, x] + q[1, y]
+                if qxy > k2:
+                    continue
+                wxy = wg * e[0, x] * e[1, y]
+                base = x * 64 + y * 8
+                for z in range(8):
+                    if qxy + q[2, z] <= k2:
+                        acc[base + z] += wxy * e[2, z]
+
+
 @njit(parallel=True, cache=True)
 def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
     nc = corg.shape[0]
@@ -110,26 +136,7 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
         acc = np.zeros(512)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
-        for p in range(cstart[c], cstart[c + 1]):
-            g = pg[p]
-            for a in range(3):
-                for l in range(8):
-                    d = (corg[c, a] + l - cent[g, a]) / sig[g, a]
-                    q[a, l] = d * d
-                    e[a, l] = np.exp(-0.5 * d * d)
-            wg = w[g]
-            for x in range(8):
-                if q[0, x] > k2:
-                    continue
-                for y in range(8):
-                    qxy = q[0, x] + q[1, y]
-                    if qxy > k2:
-                        continue
-                    wxy = wg * e[0, x] * e[1, y]
-                    base = x * 64 + y * 8
-                    for z in range(8):
-                        if qxy + q[2, z] <= k2:
-                            acc[base + z] += wxy * e[2, z]
+        cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
         s2 = 0.0
         m = 0.0
         n = 0.0

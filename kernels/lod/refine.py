@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .error import DEFAULT_K, setup
+from .error import DEFAULT_K, cell_mixture, setup
 
 FMAX = 8.0  # largest amplitude factor (an isolated voxel needs ~3.4 at sigma = 0.6 voxel)
 QSTEPS = 256  # factor quantization: 2^(c / QSTEPS), relative step 0.27 %
@@ -40,26 +40,7 @@ def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum,
         acc = np.zeros(512)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
-        for p in range(cstart[c], cstart[c + 1]):
-            g = pg[p]
-            for a in range(3):
-                for l in range(8):
-                    d = (corg[c, a] + l - cent[g, a]) / sig[g, a]
-                    q[a, l] = d * d
-                    e[a, l] = np.exp(-0.5 * d * d)
-            wg = w[g]
-            for x in range(8):
-                if q[0, x] > k2:
-                    continue
-                for y in range(8):
-                    qxy = q[0, x] + q[1, y]
-                    if qxy > k2:
-                        continue
-                    wxy = wg * e[0, x] * e[1, y]
-                    base = x * 64 + y * 8
-                    for z in range(8):
-                        if qxy + q[2, z] <= k2:
-                            acc[base + z] += wxy * e[2, z]
+        cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
         res = np.zeros(512)
         act = np.zeros(512)
         s2 = 0.0
