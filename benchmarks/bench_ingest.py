@@ -27,8 +27,9 @@ def main(argv=None):
     ap.add_argument("--data", default=os.path.join(here, "..", "..", "shared", "data"))
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args(argv)
-    from kernels.vdb import read_topology, read_vdb
     import bpy
+
+    from kernels.vdb import read_topology, read_vdb
     bpy.utils.expose_bundled_modules()
     import openvdb
 

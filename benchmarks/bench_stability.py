@@ -23,11 +23,11 @@ def _nan_inf_row():
     """Reader + LOD on a file with NaN, +Inf, -Inf voxels: non-finite Gaussian values that reach the
     renderer (0 = sanitized or refused)."""
     import numpy as np
+    from vdb_fixtures import openvdb
 
     from kernels.lod import build_lod
-    from kernels.render import CPUDevice, RenderObject, RenderScene, TransferFunction, Camera
+    from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
     from kernels.vdb import read_vdb
-    from vdb_fixtures import openvdb
 
     ov = openvdb()
     g = ov.FloatGrid()
@@ -58,7 +58,6 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="the test-suite sizes only")
     a = ap.parse_args(argv or [])
     import numpy as np
-
     import test_stability_kernels as K
 
     big = not a.quick

@@ -40,7 +40,7 @@ def camera_from_object(cam_obj, width, height, matrix_world=None):
     if cam.type not in ("PERSP", "ORTHO"):
         raise ValueError(f"camera type {cam.type} is not supported (perspective and orthographic are)")
     mw = np.array(matrix_world if matrix_world is not None else cam_obj.matrix_world, np.float64)
-    big, small = max(width, height), min(width, height)
+    big = max(width, height)
     fit = cam.sensor_fit
     if fit == "AUTO":
         fitted = big

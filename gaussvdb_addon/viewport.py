@@ -33,14 +33,13 @@ def camera_from_matrices(view_matrix, window_matrix, width, height, is_perspecti
         is_perspective = abs(p[3, 3]) < 0.5
     cam_to_world = np.linalg.inv(v)
     big = max(width, height)
+    ex = 2.0 / p[0, 0]  # image width on the plane z = -1 (perspective) or in view units (ortho)
     if is_perspective:
-        ex, ey = 2.0 / p[0, 0], 2.0 / p[1, 1]  # image extents on the plane z = -1
         cx, cy = p[0, 2] / p[0, 0], p[1, 2] / p[1, 1]  # image centre on that plane
     else:
-        ex, ey = 2.0 / p[0, 0], 2.0 / p[1, 1]
         cx, cy = -p[0, 3] / p[0, 0], -p[1, 3] / p[1, 1]
     # the kernel's plane: larger side spans `bigext`, the other side the same per pixel
-    bigext = ex * big / width  # (ey * big / height is the same for square pixels)
+    bigext = ex * big / width  # (the height gives the same for square pixels)
     sx, sy = cx / bigext, cy / bigext
     if is_perspective:
         return Camera(cam_to_world, width, height, "persp", fov_x=2.0 * math.atan(0.5 * bigext),

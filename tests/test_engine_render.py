@@ -6,7 +6,6 @@ import time
 
 import numpy as np
 import pytest
-
 from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, setup_render
 
 W, H = 64, 32

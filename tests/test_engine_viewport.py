@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-
 from test_engine_helpers import add_camera, lattice, make_object, setup_render
 
 

@@ -3,7 +3,8 @@ encoding round trip."""
 import numba
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from kernels.lod import PRESETS, build_lod, decode_compact, encode_compact, field_error
 from kernels.lod.build import effective_masks

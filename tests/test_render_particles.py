@@ -1,12 +1,10 @@
 """Particles mode: closed forms, invariances, determinism, extremes."""
-import math
 
 import mpmath
 import numpy as np
 import pytest
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays
-from kernels.render.colormaps import colormap, srgb_to_linear
 from kernels.render.synthetic import gaussian_set
 
 mpmath.mp.dps = 50

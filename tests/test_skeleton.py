@@ -43,7 +43,6 @@ def test_addon_registers_engine_operator_and_properties(scene, bpy_module):
 
 def test_disable_leaves_nothing_registered(addon, bpy_module):
     import addon_utils
-
     from conftest import ADDON_MODULE
 
     bpy = bpy_module

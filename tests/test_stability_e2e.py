@@ -14,9 +14,8 @@ import warnings
 
 import numpy as np
 import pytest
-from scipy.special import erf  # noqa: F401  (only to fail early if scipy is missing)
-
 from conftest import ADDON_MODULE
+from scipy.special import erf  # noqa: F401  (only to fail early if scipy is missing)
 from vdb_fixtures import openvdb, write_grid
 
 

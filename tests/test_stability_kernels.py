@@ -10,7 +10,8 @@ import math
 import mpmath
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.special import erf as serf
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays

@@ -122,10 +122,10 @@ def test_transforms(oracle):
 def test_every_metadata_code_is_exercised(oracle):
     from kernels.vdb import codec
     from kernels.vdb.leaves import scan_leaves
-    from kernels.vdb.stream import Cursor
-    from kernels.vdb.tree import read_tree_topology
     from kernels.vdb.metadata import read_metamap
+    from kernels.vdb.stream import Cursor
     from kernels.vdb.transform import read_transform
+    from kernels.vdb.tree import read_tree_topology
     f = read_topology(oracle, "codes")
     a, b = f.grid_info["codes"]["byte_range"]
     data = open(oracle, "rb").read()

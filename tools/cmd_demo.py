@@ -34,9 +34,8 @@ def render_pngs(bpy, objs, args) -> list:
     """Render the first imported grid at every LOD it holds (particles mode, viridis); returns paths."""
     if args.size == "0" or not objs:
         return []
-    from blender_session import addon_module
-
     import cmd_render
+    from blender_session import addon_module
 
     final_render = addon_module("gaussvdb_addon.final_render")
     obj = objs[0]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from . import clustering, levelset, schemes, weights as W
+from . import clustering, levelset, schemes
+from . import weights as W
 from .gaussian_set import GaussianSet
 
 # ordered: the paper's three spatial schemes, then the two clustering schemes
