@@ -13,10 +13,15 @@ except ImportError:  # pragma: no cover
     blosc_ptr = None
 
 try:
-    from numba import njit
+    from numba import njit, prange
 except ImportError:  # pragma: no cover - numba is optional at run time
     def njit(*args, **kwargs):
         return (lambda f: f) if not args or not callable(args[0]) else args[0]
+
+    prange = range
+
+# Below this many leaves the scatter runs serially: starting threads would cost more than it saves.
+PARALLEL_LEAVES = 512
 
 _POPC8 = np.array([bin(i).count("1") for i in range(256)], np.int64)
 
@@ -261,7 +266,6 @@ def _leaf(src, o, i, kind, lut, compact, masks, val0, val1, sel, outu):
                     outu[i, slot, c] = val0[i, c]
 
 
-@njit(cache=True, nogil=True)
 def _decode(buf, pool, kind, lut, chunk_off, chunk_len, pool_start, masks, compact, val0, val1,
             sel, outu, outf, mag):
     """Convert and scatter every leaf straight from the file (raw chunks) or the pool (inflated
@@ -271,7 +275,7 @@ def _decode(buf, pool, kind, lut, chunk_off, chunk_len, pool_start, masks, compa
     decompression before this runs.
     """
     nc = outu.shape[2]
-    for i in range(masks.shape[0]):
+    for i in prange(masks.shape[0]):  # leaves are independent: any thread count, same result
         if chunk_len[i] > 0:
             _leaf(pool, pool_start[i], i, kind, lut, compact[i], masks, val0, val1, sel, outu)
         else:
@@ -284,6 +288,8 @@ def _decode(buf, pool, kind, lut, chunk_off, chunk_len, pool_start, masks, compa
                 mag[i, slot] = np.sqrt(x * x + y * y + z * z)
 
 
+_decode_serial = njit(cache=True, nogil=True)(_decode)
+_decode_parallel = njit(cache=True, nogil=True, parallel=True)(_decode)
 _HALF_BITS = HALF_LUT.view(np.uint32)
 
 
@@ -327,6 +333,7 @@ def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
     out = np.empty((n, 512, et.ncomp), np.float32)
     if magnitudes is None:
         magnitudes = np.empty((n if et.ncomp == 3 else 0, 512), np.float32)
-    _decode(cur.arr, pool, kind, _HALF_BITS, t["chunk_off"], chunk_len, pool_start, masks, compact,
+    decode = _decode_parallel if n >= PARALLEL_LEAVES else _decode_serial
+    decode(cur.arr, pool, kind, _HALF_BITS, t["chunk_off"], chunk_len, pool_start, masks, compact,
             val0.view(np.uint32), val1.view(np.uint32), sel, out.view(np.uint32), out, magnitudes)
     return out
