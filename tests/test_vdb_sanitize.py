@@ -44,3 +44,15 @@ def test_finite_grid_untouched(tmp_path):
     masks = grid.leaf_masks
     assert sanitize_nonfinite(grid) == 0
     assert grid.leaf_masks is masks
+
+
+def test_build_lod_never_emits_nonfinite_even_unsanitized(tmp_path):
+    """build_lod drops NaN/Inf voxels itself (and counts them), without touching the caller's grid."""
+    grid = read_vdb(write_with_bad_voxels(tmp_path / "bad.vdb")).grids[0]
+    masks = grid.leaf_masks.copy()
+    for lod in ("low", "high"):
+        gs = build_lod(grid, lod)
+        assert np.isfinite(gs.values).all() and np.isfinite(gs.amplitudes).all()
+        assert gs.params["nonfinite_voxels"] == 3
+        assert int(gs.voxels.sum()) == grid.active_voxels - 3
+    np.testing.assert_array_equal(grid.leaf_masks, masks)

@@ -2,6 +2,8 @@
 (per leaf), clustering.py (merge pass), weights.py (sigma/amplitude), levelset.py (band filter)."""
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 from numba import njit, prange
 
@@ -76,6 +78,17 @@ def effective_masks(grid, level_set_band=True, band_width=levelset.DEFAULT_BAND_
     return grid.leaf_masks, None
 
 
+def finite_grid(grid):
+    """(grid, n): the grid itself when every active value is finite, else a copy whose NaN/Inf
+    voxels and tiles are inactive (the caller's grid is untouched), with how many voxels that was."""
+    from ..vdb.sanitize import count_nonfinite, sanitize_nonfinite
+
+    if count_nonfinite(grid) == 0:
+        return grid, 0
+    clean = copy.copy(grid)
+    return clean, sanitize_nonfinite(clean)
+
+
 def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, merge=None,
               refine=0, **thresholds) -> GaussianSet:
     """refine: amplitude-refinement iterations (field weights, non-level-set grids; see refine.py).
@@ -94,6 +107,7 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
     if refine and weights == "paper":
         raise ValueError("refine is for field weights; the paper's weights stay as written")
     p = dict(DEFAULTS, **thresholds)
+    grid, nonfinite = finite_grid(grid)  # NaN/Inf is no density: never let it reach a Gaussian
     is_ls = grid.grid_class == "level_set"
     vmin, vmax = value_range(grid)
     vr = vmax - vmin
@@ -156,7 +170,8 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
     amp = W.amplitudes(sig, vox_true, weights)
     vals = np.ones(len(group), np.float32) if is_ls else box["val"].astype(np.float32)
     params = dict(p, preset=preset, base=base, level_set_band=bool(level_set_band and is_ls),
-                  band_threshold=band_thr, value_min=vmin, value_max=vmax, merged=n_merged)
+                  band_threshold=band_thr, value_min=vmin, value_max=vmax, merged=n_merged,
+                  nonfinite_voxels=nonfinite)
     gs = GaussianSet(
         group_origins=origins, group_start=gstart,
         offsets=(box["c2"].astype(np.float32) * np.float32(0.5)), sigmas=sig, values=vals,

@@ -25,7 +25,7 @@ import time
 import numpy as np
 from numba import njit, prange
 
-from .build import effective_masks
+from .build import effective_masks, finite_grid
 from .levelset import band_threshold
 
 DEFAULT_K = 4.0
@@ -201,6 +201,7 @@ def _cells(grid, gset):
 def setup(grid, gset, k=DEFAULT_K):
     """Cells (sorted by key), the (cell, Gaussian) pair lists and the Gaussians' geometry: all that
     the evaluation needs except the weights (so an amplitude refinement can reuse it)."""
+    grid, _ = finite_grid(grid)  # the voxels build_lod kept: NaN/Inf ones are inactive there too
     corg, cmask, cref, cw, is_ls = _cells(grid, gset)
     keys = ((corg[:, 0] >> 3) + _OFF << 42) | ((corg[:, 1] >> 3) + _OFF << 21) | ((corg[:, 2] >> 3) + _OFF)
     srt = np.argsort(keys, kind="stable")
