@@ -243,6 +243,19 @@ def composite(st, tau, r, g, b, v, ta, tb):
     st[0] = Tn
 
 
+@njit(**_jit, inline="always")
+def whitened_chord(ox, oy, oz, dx, dy, dz, g_mu, g_inv, g):
+    """Ray o + t d against Gaussian g in its whitened frame: (t*, a = |d'|^2, Qmin), with Qmin from
+    the closest-point vector (never c - b^2/a, which cancels far from the origin)."""
+    ix, iy, iz = g_inv[g, 0], g_inv[g, 1], g_inv[g, 2]
+    wx, wy, wz = (ox - g_mu[g, 0]) * ix, (oy - g_mu[g, 1]) * iy, (oz - g_mu[g, 2]) * iz
+    vx, vy, vz = dx * ix, dy * iy, dz * iz
+    a = vx * vx + vy * vy + vz * vz
+    ts = -(wx * vx + wy * vy + wz * vz) / a
+    px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
+    return ts, a, px * px + py * py + pz * pz
+
+
 @njit(**_jit)
 def gather_hits(p0, p1, cov_obj, cov_cell, ncov, ro, rd, cell_start, cell_items, g_mu, g_inv,
                 g_w, k2, h_s, h_e, h_ts, h_sa, h_pref, h_q, h_ha, h_id):
@@ -257,13 +270,7 @@ def gather_hits(p0, p1, cov_obj, cov_cell, ncov, ro, rd, cell_start, cell_items,
             g = cell_items[j]
             if g_w[g] == 0.0:
                 continue
-            ix, iy, iz = g_inv[g, 0], g_inv[g, 1], g_inv[g, 2]
-            wx, wy, wz = (ox - g_mu[g, 0]) * ix, (oy - g_mu[g, 1]) * iy, (oz - g_mu[g, 2]) * iz
-            vx, vy, vz = dx * ix, dy * iy, dz * iz
-            a = vx * vx + vy * vy + vz * vz
-            ts = -(wx * vx + wy * vy + wz * vz) / a
-            px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
-            q = px * px + py * py + pz * pz  # closest point, never c - b^2/a
+            ts, a, q = whitened_chord(ox, oy, oz, dx, dy, dz, g_mu, g_inv, g)
             if q >= k2:
                 continue
             hw = math.sqrt((k2 - q) / a)
@@ -600,13 +607,7 @@ def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_it
                 g = cell_items[j]
                 if g_w[g] == 0.0:
                     continue
-                ix, iy, iz = g_inv[g, 0], g_inv[g, 1], g_inv[g, 2]
-                wx, wy, wz = (ox - g_mu[g, 0]) * ix, (oy - g_mu[g, 1]) * iy, (oz - g_mu[g, 2]) * iz
-                vx, vy, vz = dx * ix, dy * iy, dz * iz
-                a = vx * vx + vy * vy + vz * vz
-                ts = -(wx * vx + wy * vy + wz * vz) / a
-                px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
-                q = px * px + py * py + pz * pz
+                ts, a, q = whitened_chord(ox, oy, oz, dx, dy, dz, g_mu, g_inv, g)
                 if q >= k2:
                     continue
                 hw = math.sqrt((k2 - q) / a)
