@@ -31,7 +31,9 @@ def start():
     if "bpy" in sys.modules:
         raise RuntimeError("blender_session.start() must run before bpy is imported")
     base = session_dir()
-    os.environ["BLENDER_USER_EXTENSIONS"] = os.path.join(base, "extensions")
+    # GAUSSVDB_BLENDER_EXTENSIONS lets the test suite share its folder (and so numba's cache).
+    os.environ["BLENDER_USER_EXTENSIONS"] = os.environ.get("GAUSSVDB_BLENDER_EXTENSIONS") or \
+        os.path.join(base, "extensions")
     os.environ["BLENDER_USER_CONFIG"] = os.path.join(base, "config")
     os.environ["BLENDER_USER_SCRIPTS"] = os.path.join(base, "scripts")
     os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(base, "numba"))
