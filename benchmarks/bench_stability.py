@@ -23,24 +23,13 @@ def _nan_inf_row():
     """Reader + LOD on a file with NaN, +Inf, -Inf voxels: non-finite Gaussian values that reach the
     renderer (0 = sanitized or refused)."""
     import numpy as np
-    from vdb_fixtures import openvdb
+    from vdb_fixtures import write_nan_inf
 
     from kernels.lod import build_lod
     from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
     from kernels.vdb import read_vdb
 
-    ov = openvdb()
-    g = ov.FloatGrid()
-    a = g.getAccessor()
-    for i in range(8):
-        for j in range(8):
-            for k in range(8):
-                a.setValueOn((i, j, k), 0.5)
-    a.setValueOn((1, 1, 1), float("nan"))
-    a.setValueOn((2, 2, 2), float("inf"))
-    a.setValueOn((5, 5, 5), float("-inf"))
-    path = os.path.join(tempfile.mkdtemp(), "naninf.vdb")
-    ov.write(path, grids=[g])
+    path = write_nan_inf(os.path.join(tempfile.mkdtemp(), "naninf.vdb"))
     grid = read_vdb(path).grids[0]
     bad = 0
     value_bad = 0

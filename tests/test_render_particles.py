@@ -6,6 +6,7 @@ import pytest
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays
 from kernels.render.synthetic import gaussian_set
+from tests.references import quadrature_pixel
 
 mpmath.mp.dps = 50
 
@@ -168,27 +169,6 @@ def test_thread_count_bitwise_deterministic(dev):
         assert np.array_equal(a[k], b[k]), k
 
 
-def brute_force_pixel(o, d, cs, sig, kap, col, k=3.0, n=40001):
-    """Fine quadrature of the truncated mixture (exact exponential per step)."""
-    sig = np.broadcast_to(sig, cs.shape)
-    t = np.linspace(5, 45, n)
-    dt = t[1] - t[0]
-    tm = t[:-1] + dt / 2
-    x = o[None] + tm[:, None] * d[None]
-    s_t = np.zeros(tm.size)
-    c_t = np.zeros((tm.size, 3))
-    for i in range(len(cs)):
-        q = np.sum(((x - cs[i]) / sig[i]) ** 2, 1)
-        g = np.where(q < k * k, np.exp(-q / 2), 0.0) * kap[i]
-        s_t += g
-        c_t += g[:, None] * col[i]
-    tau = s_t * dt
-    T = np.exp(-np.concatenate([[0], np.cumsum(tau)[:-1]]))
-    w = T * -np.expm1(-tau)
-    cc = np.where(s_t[:, None] > 0, c_t / np.maximum(s_t, 1e-300)[:, None], 0)
-    return np.concatenate([(w[:, None] * cc).sum(0), [1 - np.exp(-tau.sum())]])
-
-
 @pytest.mark.parametrize("view", [(0.0, 0.0, -1.0), (1.0, 0.7, -0.4)])
 def test_overlapping_mixture_vs_brute_force(dev, view):
     """Halo lists + (t, id) event sweep + tau subdivision vs quadrature; an axis-aligned
@@ -202,7 +182,7 @@ def test_overlapping_mixture_vs_brute_force(dev, view):
     rgba = tf(v)
     kap, col = 0.5 * rgba[:, 3], rgba[:, :3]
     for p in [0, 8, 17, 23, 34]:
-        ref = brute_force_pixel(o[p], d[p], cs, s, kap, col)
+        ref = quadrature_pixel(o[p], d[p], cs, s, kap, col, 5.0, 45.0)
         np.testing.assert_allclose(img[p], ref, atol=2e-4, err_msg=str(p))
     assert img[17, 3] > 0.5
 

@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 from conftest import ADDON_MODULE
 from scipy.special import erf  # noqa: F401  (only to fail early if scipy is missing)
-from vdb_fixtures import openvdb, write_grid
+from vdb_fixtures import openvdb, write_grid, write_nan_inf
+
+from tests.references import closed_form_alpha
 
 
 def _mod(name):
@@ -95,40 +97,6 @@ def check_sane(out, tf=None):
             assert np.all(np.isfinite(out[k])), f"non-finite {k} pass"
 
 
-def closed_form_alpha(cam, gset, mw, density, k=3.0):
-    """float64 numpy: alpha per pixel of particles mode under a constant-alpha TF (support k)."""
-    gr = _mod("kernels.render").generate_rays
-    o, d = gr(cam)
-    w2i = np.linalg.inv(mw)
-    oi = o @ w2i[:3, :3].T + w2i[:3, 3]
-    di = d @ w2i[:3, :3].T
-    start = np.asarray(gset.group_start)
-    mu = np.repeat(np.asarray(gset.group_origins, np.float64), np.diff(start), 0) + \
-        np.asarray(gset.offsets, np.float64)
-    sig = np.asarray(gset.sigmas, np.float64)
-    amp = np.asarray(gset.amplitudes, np.float64)
-    from scipy.special import erf as serf
-    tau = np.zeros(len(o))
-    for c0 in range(0, len(mu), 256):
-        sl = slice(c0, c0 + 256)
-        wo = (oi[:, None, :] - mu[None, sl]) / sig[None, sl]
-        wd = di[:, None, :] / sig[None, sl]
-        a = np.sum(wd * wd, -1)
-        ts = -np.sum(wo * wd, -1) / a
-        p = wo + ts[..., None] * wd
-        q = np.sum(p * p, -1)
-        inside = q < k * k
-        hw = np.sqrt(np.maximum(k * k - q, 0.0) / a)
-        t0 = np.maximum(ts - hw, 0.0)
-        t1 = ts + hw
-        sa = np.sqrt(0.5 * a)
-        seg = np.where(inside & (t1 > t0),
-                       np.exp(-0.5 * q) * np.sqrt(np.pi / (2 * a)) * (serf(sa * (t1 - ts)) - serf(sa * (t0 - ts))),
-                       0.0)
-        tau += (seg * amp[None, sl]).sum(1)
-    return (-np.expm1(-density * tau)).reshape(cam.height, cam.width)
-
-
 def import_one(path, **kw):
     objs = _imp().import_vdb(str(path), **{"lods": ("high",), "compute_error": False, **kw})
     assert len(objs) == 1
@@ -173,22 +141,6 @@ def write_with_voxel_size(path, vals, voxel, **kw):
 
 
 # -- cases ------------------------------------------------------------------------------------------
-def write_nan_inf(path):
-    ov = openvdb()
-    g = ov.FloatGrid()
-    g.name = "density"
-    a = g.getAccessor()
-    for i in range(8):
-        for j in range(8):
-            for k in range(8):
-                a.setValueOn((i, j, k), 0.5)
-    a.setValueOn((1, 1, 1), float("nan"))
-    a.setValueOn((2, 2, 2), float("inf"))
-    a.setValueOn((5, 5, 5), float("-inf"))
-    ov.write(str(path), grids=[g])
-    return path
-
-
 def test_nan_inf_voxels_never_crash_or_half_build(bpy_module, scene, tmp_path):
     """Whatever the importer decides, Blender survives, the scene is whole and Combined is finite."""
     bpy = bpy_module

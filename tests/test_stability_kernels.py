@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.special import erf as serf
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
 from kernels.render.synthetic import gaussian_set
+from tests.references import closed_form_alpha, quadrature_pixel
 
 mpmath.mp.dps = 50
 HYP = settings(max_examples=60, deadline=None, derandomize=True)
@@ -78,36 +78,6 @@ def rel_err(got, ref):
 def whiten(center, sigma, o, d):
     c, s = np.asarray(center, float), np.asarray(sigma, float)
     return (np.asarray(o, float) - c) / s, np.asarray(d, float) / s
-
-
-def closed_form_alpha(cam, gs, mw, density, k=3.0):
-    """float64 numpy, no numba, no traversal: alpha per pixel of particles mode under a
-    constant-alpha TF, Gaussians truncated at k sigma, rays from t = 0."""
-    o, d = generate_rays(cam)
-    w2i = np.linalg.inv(mw)
-    oi = o @ w2i[:3, :3].T + w2i[:3, 3]
-    di = d @ w2i[:3, :3].T
-    start = np.asarray(gs.group_start)
-    mu = np.repeat(np.asarray(gs.group_origins, np.float64), np.diff(start), 0) + np.asarray(gs.offsets, np.float64)
-    sig = np.asarray(gs.sigmas, np.float64)
-    amp = np.asarray(gs.amplitudes, np.float64)
-    tau = np.zeros(len(o))
-    for c0 in range(0, len(mu), 256):
-        sl = slice(c0, c0 + 256)
-        wo = (oi[:, None, :] - mu[None, sl]) / sig[None, sl]
-        wd = di[:, None, :] / sig[None, sl]
-        a = np.sum(wd * wd, -1)
-        ts = -np.sum(wo * wd, -1) / a
-        p = wo + ts[..., None] * wd
-        q = np.sum(p * p, -1)
-        hw = np.sqrt(np.maximum(k * k - q, 0.0) / a)
-        t0 = np.maximum(ts - hw, 0.0)
-        t1 = ts + hw
-        sa = np.sqrt(0.5 * a)
-        seg = np.where((q < k * k) & (t1 > t0), np.exp(-0.5 * q) * np.sqrt(np.pi / (2 * a))
-                       * (serf(sa * (t1 - ts)) - serf(sa * (t0 - ts))), 0.0)
-        tau += (seg * amp[None, sl]).sum(1)
-    return (-np.expm1(-density * tau)).reshape(cam.height, cam.width)
 
 
 def const_tf(density, color=(0.3, 0.7, 0.2)):
@@ -338,25 +308,6 @@ def case_field_convergence(steps=(1.0, 0.5, 0.25, 0.125)):
     return errs, order, ref
 
 
-def particles_pixel_ref(o, d, cs, sig, kap, col, t0, t1, k=3.0, n=400001):
-    t = np.linspace(t0, t1, n)
-    dt = t[1] - t[0]
-    tm = t[:-1] + dt / 2
-    x = o[None] + tm[:, None] * d[None]
-    s_t = np.zeros(tm.size)
-    c_t = np.zeros((tm.size, 3))
-    for i in range(len(cs)):
-        q = np.sum(((x - cs[i]) / sig[i]) ** 2, 1)
-        g = np.where(q < k * k, np.exp(-q / 2), 0.0) * kap[i]
-        s_t += g
-        c_t += g[:, None] * col[i]
-    tau = s_t * dt
-    T = np.exp(-np.concatenate([[0], np.cumsum(tau)[:-1]]))
-    w = T * -np.expm1(-tau)
-    cc = np.where(s_t[:, None] > 0, c_t / np.maximum(s_t, 1e-300)[:, None], 0)
-    return np.concatenate([(w[:, None] * cc).sum(0), [1 - np.exp(-tau.sum())]])
-
-
 def case_particles_convergence(tau_maxes=(0.8, 0.4, 0.2, 0.1, 0.05)):
     """Particles mode as the mixed-segment subdivision tau_max -> 0, three overlapping Gaussians of
     very different colours on one ray, vs fine quadrature: errors and observed order."""
@@ -369,8 +320,8 @@ def case_particles_convergence(tau_maxes=(0.8, 0.4, 0.2, 0.1, 0.05)):
     m[:3, 3] = [0.05, 0.02, 20]
     cam = Camera(m, 1, 1, "ortho", ortho_scale=0.1)
     rgba = tf(vals)
-    ref = particles_pixel_ref(np.array([0.05, 0.02, 20.0]), np.array([0, 0, -1.0]), cs, sig,
-                              1.2 * rgba[:, 3], rgba[:, :3], 12, 28)
+    ref = quadrature_pixel(np.array([0.05, 0.02, 20.0]), np.array([0, 0, -1.0]), cs, sig,
+                           1.2 * rgba[:, 3], rgba[:, :3], 12, 28, n=400001)
     errs = []
     for tm in tau_maxes:
         sc = RenderScene([RenderObject(gs)], tau_max=tm, transmittance_min=0.0, background=(0, 0, 0, 0))

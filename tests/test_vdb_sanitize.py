@@ -4,25 +4,12 @@ import numpy as np
 
 from kernels.lod import build_lod
 from kernels.vdb import count_nonfinite, read_vdb, sanitize_nonfinite
-from tests.vdb_fixtures import openvdb, write_grid
-
-
-def write_with_bad_voxels(path):
-    ov = openvdb()
-    g = ov.FloatGrid()
-    g.name = "density"
-    acc = g.getAccessor()
-    for ijk in np.ndindex(10, 9, 8):
-        acc.setValueOn(ijk, 0.5)
-    for ijk, v in (((1, 1, 1), np.nan), ((2, 3, 4), np.inf), ((9, 8, 7), -np.inf)):
-        acc.setValueOn(ijk, float(v))
-    ov.write(str(path), grids=[g])
-    return path
+from tests.vdb_fixtures import write_grid, write_nan_inf
 
 
 def test_nonfinite_voxels_deactivated_and_counted(tmp_path):
-    vals = np.empty((10, 9, 8))
-    grid = read_vdb(write_with_bad_voxels(tmp_path / "bad.vdb")).grids[0]
+    vals = np.empty((8, 8, 8))
+    grid = read_vdb(write_nan_inf(tmp_path / "bad.vdb")).grids[0]
     before = grid.active_voxels
     masks_before = grid.leaf_masks.copy()
     assert count_nonfinite(grid) == 3
@@ -48,7 +35,7 @@ def test_finite_grid_untouched(tmp_path):
 
 def test_build_lod_never_emits_nonfinite_even_unsanitized(tmp_path):
     """build_lod drops NaN/Inf voxels itself (and counts them), without touching the caller's grid."""
-    grid = read_vdb(write_with_bad_voxels(tmp_path / "bad.vdb")).grids[0]
+    grid = read_vdb(write_nan_inf(tmp_path / "bad.vdb")).grids[0]
     masks = grid.leaf_masks.copy()
     for lod in ("low", "high"):
         gs = build_lod(grid, lod)

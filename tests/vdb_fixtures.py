@@ -28,6 +28,20 @@ def openvdb():
     return ov
 
 
+def write_nan_inf(path, name="density"):
+    """An 8^3 block of 0.5 with one NaN, one +Inf and one -Inf voxel, all active. Returns the path."""
+    ov = openvdb()
+    g = ov.FloatGrid()
+    g.name = name
+    acc = g.getAccessor()
+    for ijk in np.ndindex(8, 8, 8):
+        acc.setValueOn(ijk, 0.5)
+    for ijk, v in (((1, 1, 1), np.nan), ((2, 2, 2), np.inf), ((5, 5, 5), -np.inf)):
+        acc.setValueOn(ijk, float(v))
+    ov.write(str(path), grids=[g])
+    return path
+
+
 def write_grid(path, values_dense=None, *, name="density", origin=(0, 0, 0), background=0.0,
                voxel_size=1.0, grid_class="fog volume", half=False, matrix=None, tolerance=0.0):
     """Write one float grid: ``values_dense`` (x, y, z) placed at index ``origin``; voxels equal to
@@ -203,7 +217,6 @@ def transcode(src, dst, *, compression="blosc", active_mask=True, half=None, off
     for _ in range(count):
         unique, tname, parent = cur.string(), cur.string(), cur.string()
         gpos, _bpos, epos = cur.i64(), cur.i64(), cur.i64()
-        desc_end = cur.pos
         g = Cursor(data, str(src), gpos, epos)
         flags_in = g.u32()
         meta = _raw_metamap(g)
