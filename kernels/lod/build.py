@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 
 import numpy as np
-from numba import njit, prange
 
 from . import clustering, levelset, schemes
 from . import weights as W
@@ -26,48 +25,44 @@ DEFAULTS = dict(
 )
 
 
-@njit(parallel=True, cache=True)
-def _leaf_minmax(masks, values):
-    n = masks.shape[0]
-    lo = np.full(n, np.inf)
-    hi = np.full(n, -np.inf)
-    for i in prange(n):
-        a, b = np.inf, -np.inf
-        for w in range(8):
-            m = masks[i, w]
-            if m == 0:
-                continue
-            if m == np.uint64(0xFFFFFFFFFFFFFFFF):
-                for k in range(64):
-                    v = np.float64(values[i, w * 64 + k])
-                    a, b = min(a, v), max(b, v)
-                continue
-            for k in range(64):
-                if (m >> np.uint64(k)) & np.uint64(1):
-                    v = np.float64(values[i, w * 64 + k])
-                    a, b = min(a, v), max(b, v)
-        lo[i], hi[i] = a, b
-    return lo, hi
+def _range(lo, hi, tile_values):
+    """(min, max) from the per-leaf lo/hi of scan_leaves and the active tiles' values; (0, 0)
+    when there is nothing."""
+    tv = np.asarray(tile_values, np.float64)
+    lo_ = [np.inf] + ([lo.min()] if len(lo) else []) + ([tv.min()] if len(tv) else [])
+    hi_ = [-np.inf] + ([hi.max()] if len(hi) else []) + ([tv.max()] if len(tv) else [])
+    a, b = min(lo_), max(hi_)
+    return (0.0, 0.0) if a > b else (float(a), float(b))
 
 
-_leaf_minmax_serial = njit(cache=True)(_leaf_minmax.py_func)
+def _active(grid):
+    """Indices of the active tiles (cheap when there are none)."""
+    if not len(grid.tile_values):
+        return np.zeros(0, np.int64)
+    return np.flatnonzero(np.asarray(grid.tile_active, bool))
 
 
 def value_range(grid):
     """(min, max) over the active voxels, tiles included; (0, 0) for an empty grid."""
-    lo, hi = [np.inf], [-np.inf]
-    if len(grid.leaf_masks):
-        f = _leaf_minmax_serial if len(grid.leaf_masks) < schemes.SERIAL_BELOW else _leaf_minmax
-        a, b = f(grid.leaf_masks, grid.leaf_values)
-        lo.append(a.min())
-        hi.append(b.max())
-    act = np.asarray(grid.tile_active, bool)
-    if act.any():
-        tv = np.asarray(grid.tile_values, np.float64)[act]
-        lo.append(tv.min())
-        hi.append(tv.max())
-    a, b = min(lo), max(hi)
-    return (0.0, 0.0) if a > b else (float(a), float(b))
+    n = len(grid.leaf_masks)
+    lo = hi = np.zeros(0)
+    if n:
+        lo, hi, *_ = schemes.kernels(n)["scan"](grid.leaf_masks, grid.leaf_values,
+                                                np.arange(n, dtype=np.int64), False,
+                                                np.float32(0), schemes.LOW)
+    return _range(lo, hi, np.asarray(grid.tile_values)[_active(grid)])
+
+
+def leaf_order(origins):
+    """Leaves sorted by origin (x, then y, then z), so the output (and its encoding) is canonical.
+    Many leaves: one int64 key each and a stable sort (files are nearly in this order, where that
+    is ~10x faster than lexsort on three keys); lexsort for few leaves or a span over 21 bits."""
+    o = np.asarray(origins, np.int32).reshape(-1, 3)
+    if len(o) >= 1024:
+        rel = [o[:, k].astype(np.int64) - o[:, k].min() for k in range(3)]  # min(axis=0) is slow
+        if max(r.max() for r in rel) < 1 << 21:
+            return np.argsort((rel[0] << 42) | (rel[1] << 21) | rel[2], kind="stable")
+    return np.lexsort((o[:, 2], o[:, 1], o[:, 0])).astype(np.int64)
 
 
 def effective_masks(grid, level_set_band=True, band_width=levelset.DEFAULT_BAND_WIDTH):
@@ -89,6 +84,42 @@ def finite_grid(grid):
     return clean, sanitize_nonfinite(clean)
 
 
+def _scan(K, grid, order, band_thr, code):
+    """scan_leaves over the grid; when it meets NaN/Inf (or a tile does), over a sanitized copy.
+    Returns (grid, nonfinite voxels, lo, hi, kept, counts, active tile indices)."""
+    thr = np.float32(band_thr if band_thr is not None else 0.0)
+    lo, hi, bad, kept, counts = K["scan"](grid.leaf_masks, grid.leaf_values, order,
+                                          band_thr is not None, thr, code)
+    t_act = _active(grid)
+    if not bad.any() and np.isfinite(np.asarray(grid.tile_values)[t_act]).all():
+        return grid, 0, lo, hi, kept, counts, t_act
+    grid, nonfinite = finite_grid(grid)  # NaN/Inf is no density: never let it reach a Gaussian
+    lo, hi, _, kept, counts = K["scan"](grid.leaf_masks, grid.leaf_values, order,
+                                        band_thr is not None, thr, code)
+    return grid, nonfinite, lo, hi, kept, counts, _active(grid)
+
+
+def _tile_boxes(grid, t_act, band_thr):
+    """Active tiles t_act, one box each (so no data is omitted), sorted by origin; level sets:
+    only the tiles within the band. Returns (origins int32 (T, 3), box dict as in schemes.py, or
+    None when T = 0)."""
+    t_or = np.asarray(grid.tile_origins, np.int32).reshape(-1, 3)[t_act]
+    if not len(t_or):
+        return t_or, None
+    t_val = np.asarray(grid.tile_values, np.float32)[t_act]
+    t_sz = np.asarray(grid.tile_sizes, np.int64)[t_act]
+    if band_thr is not None:
+        sel = np.abs(t_val) <= band_thr
+        t_or, t_val, t_sz = t_or[sel], t_val[sel], t_sz[sel]
+    o = np.lexsort((t_or[:, 2], t_or[:, 1], t_or[:, 0]))
+    t_or, t_val, s = t_or[o], t_val[o], t_sz[o]
+    box = dict(c2=np.repeat((s - 1)[:, None], 3, 1).astype(np.int16),
+               ext=np.repeat(s[:, None], 3, 1).astype(np.int16),
+               nvox=np.minimum(s ** 3, np.iinfo(np.int32).max).astype(np.int32),
+               val=t_val, kind=np.zeros(len(s), np.uint8))
+    return t_or, box
+
+
 def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, merge=None,
               refine=0, **thresholds) -> GaussianSet:
     """refine: amplitude-refinement iterations (field weights, non-level-set grids; see refine.py).
@@ -107,46 +138,43 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
     if refine and weights == "paper":
         raise ValueError("refine is for field weights; the paper's weights stay as written")
     p = dict(DEFAULTS, **thresholds)
-    grid, nonfinite = finite_grid(grid)  # NaN/Inf is no density: never let it reach a Gaussian
     is_ls = grid.grid_class == "level_set"
-    vmin, vmax = value_range(grid)
-    vr = vmax - vmin
-    masks, band_thr = effective_masks(grid, level_set_band, p["band_width"])
-
-    # leaves, sorted by origin so the output (and its encoding) is canonical
-    lo_ = np.asarray(grid.leaf_origins, np.int32).reshape(-1, 3)
-    order = np.lexsort((lo_[:, 2], lo_[:, 1], lo_[:, 0])).astype(np.int64)
     base = p["merge_base"] if preset == "merged" else preset
-    thr_v = p["var_value"] * vr
-    counts, box = schemes.leaf_boxes(masks, grid.leaf_values, order, base,
-                                     p["var_spatial"], thr_v * thr_v)
+    code = schemes.SCHEME_CODES[base]
+    paper, scale = weights == "paper", W.sigma_scale(weights, p["sigma_factor"])
+    lo_ = np.asarray(grid.leaf_origins, np.int32).reshape(-1, 3)
+    order = leaf_order(lo_)
+    K = schemes.kernels(len(order))
+    band_thr = None  # level sets: only the band where the zero crossing can be (levelset.py)
+    if is_ls and level_set_band and len(grid.leaf_masks):
+        band_thr = levelset.band_threshold(grid, p["band_width"])
+    grid, nonfinite, lo, hi, kept, counts, t_act = _scan(K, grid, order, band_thr, code)
+    vmin, vmax = _range(lo, hi, np.asarray(grid.tile_values)[t_act])
+    vr = vmax - vmin
+    thr_sp, thr_v = float(p["var_spatial"]), float(p["var_value"] * vr)
+    values = grid.leaf_values
+    if code == schemes.VARIANCE:
+        counts = K["count"](kept, values, order, code, thr_sp, thr_v * thr_v)
+    starts = np.zeros(len(counts) + 1, np.int64)
+    np.cumsum(counts, out=starts[1:])
+    m_leaf = int(starts[-1])
     nz = counts > 0
-    leaf_groups = lo_[order[nz]]
-    group = np.repeat(np.arange(int(nz.sum()), dtype=np.int64), counts[nz])
-    n_leaf = len(leaf_groups)
-
-    # active tiles: one Gaussian each (so no data is omitted); level sets: only near zero
-    t_or = np.asarray(grid.tile_origins, np.int32).reshape(-1, 3)
-    t_sz = np.asarray(grid.tile_sizes, np.int64)
-    t_val = np.asarray(grid.tile_values, np.float32)
-    t_sel = np.asarray(grid.tile_active, bool).copy()
-    if band_thr is not None:
-        t_sel &= np.abs(t_val) <= band_thr
-    t_idx = np.nonzero(t_sel)[0]
-    t_idx = t_idx[np.lexsort((t_or[t_idx, 2], t_or[t_idx, 1], t_or[t_idx, 0]))]
-    nt = len(t_idx)
-    origins = np.concatenate([leaf_groups, t_or[t_idx]]).astype(np.int32)
-    if nt:
-        s = t_sz[t_idx]
-        tbox = dict(c2=np.repeat((s - 1)[:, None], 3, 1).astype(np.int16),
-                    ext=np.repeat(s[:, None], 3, 1).astype(np.int16),
-                    nvox=np.minimum(s ** 3, np.iinfo(np.int32).max).astype(np.int32),
-                    val=t_val[t_idx], kind=np.zeros(nt, np.uint8))
-        box = {k: np.concatenate([box[k], tbox[k]]) for k in box}
-        group = np.concatenate([group, n_leaf + np.arange(nt, dtype=np.int64)])
+    n_leaf = int(np.count_nonzero(nz))
+    t_or, tbox = _tile_boxes(grid, t_act, band_thr)
+    nt = len(t_or)
+    origins = np.concatenate([lo_[order[nz]], t_or]) if nt else lo_[order[nz]]
 
     n_merged = 0
-    if preset == "merged" or merge:
+    if preset == "merged" or merge:  # the merge pass works on boxes; Gaussians after it
+        box = dict(c2=np.empty((m_leaf, 3), np.int16), ext=np.empty((m_leaf, 3), np.int16),
+                   nvox=np.empty(m_leaf, np.int32), val=np.empty(m_leaf, np.float32),
+                   kind=np.empty(m_leaf, np.uint8))
+        K["boxes"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, box["c2"],
+                   box["ext"], box["nvox"], box["val"], box["kind"])
+        group = np.repeat(np.arange(n_leaf, dtype=np.int64), counts[nz])
+        if nt:
+            box = {k: np.concatenate([box[k], tbox[k]]) for k in box}
+            group = np.concatenate([group, n_leaf + np.arange(nt, dtype=np.int64)])
         group, box, n_merged = clustering.merge_blocks(group, origins, n_leaf, box, vr,
                                                        p["merge_tol"])
         used = np.bincount(group, minlength=len(origins)) > 0
@@ -155,28 +183,28 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
             group = remap[group]
             n_leaf = int(used[:n_leaf].sum())
             origins = origins[used]
+        gcount = np.bincount(group, minlength=len(origins))
+        out = W.new_gaussians(len(group))
+        W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["kind"],
+                             len(group) - nt, is_ls, paper, scale, out, 0)
+    else:  # leaves straight into the output, tiles after them
+        out = W.new_gaussians(m_leaf + nt)
+        K["fill"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, is_ls, paper, scale,
+                  out)
+        if nt:
+            W.boxes_to_gaussians(tbox["c2"], tbox["ext"], tbox["nvox"], tbox["val"], tbox["kind"],
+                                 0, is_ls, paper, scale, out, m_leaf)
+        gcount = np.concatenate([counts[nz], np.ones(nt, np.int64)]) if nt else counts[nz]
 
-    gcount = np.bincount(group, minlength=len(origins))
     gstart = np.zeros(len(origins) + 1, np.int64)
     np.cumsum(gcount, out=gstart[1:])
-    codes = W.size_codes(box["ext"], box["kind"], weights)
-    scale = W.sigma_scale(weights, p["sigma_factor"])
-    sig = W.sigmas_from_codes(codes, scale)
-    vox_true = box["nvox"].astype(np.float64)
-    if nt:  # tile volumes can exceed int32 (4096^3): amplitudes from the true count
-        tmask = group >= n_leaf
-        e = box["ext"][tmask].astype(np.float64)
-        vox_true[tmask] = e[:, 0] * e[:, 1] * e[:, 2]
-    amp = W.amplitudes(sig, vox_true, weights)
-    vals = np.ones(len(group), np.float32) if is_ls else box["val"].astype(np.float32)
+    offsets, codes, sig, amp, vox, vals = out
     params = dict(p, preset=preset, base=base, level_set_band=bool(level_set_band and is_ls),
                   band_threshold=band_thr, value_min=vmin, value_max=vmax, merged=n_merged,
                   nonfinite_voxels=nonfinite)
     gs = GaussianSet(
-        group_origins=origins, group_start=gstart,
-        offsets=(box["c2"].astype(np.float32) * np.float32(0.5)), sigmas=sig, values=vals,
-        amplitudes=amp, voxels=box["nvox"].astype(np.int32), grid_class=grid.grid_class,
-        lod=preset, weights=weights,
+        group_origins=origins, group_start=gstart, offsets=offsets, sigmas=sig, values=vals,
+        amplitudes=amp, voxels=vox, grid_class=grid.grid_class, lod=preset, weights=weights,
         index_to_world=np.asarray(grid.index_to_world, np.float64),
         background=float(grid.background), n_leaf_groups=n_leaf, size_codes=codes,
         sigma_scale=scale, params=params)

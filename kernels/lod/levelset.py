@@ -18,6 +18,12 @@ def voxel_size(index_to_world) -> float:
     return float(abs(np.linalg.det(m)) ** (1.0 / 3.0)) or 1.0
 
 
+@njit(cache=True, inline="always")
+def in_band(v, thr):
+    """The band test, on float32 values and a float32 threshold (one definition for every pass)."""
+    return abs(v) <= thr
+
+
 @njit(parallel=True, cache=True)
 def band_masks(masks, values, thr):
     """uint64 (N, 8): active voxels with |value| <= thr."""
@@ -31,7 +37,7 @@ def band_masks(masks, values, thr):
             r = np.uint64(0)
             for b in range(64):
                 if (m >> np.uint64(b)) & np.uint64(1):
-                    if abs(values[i, w * 64 + b]) <= thr:
+                    if in_band(values[i, w * 64 + b], thr):
                         r |= np.uint64(1) << np.uint64(b)
             out[i, w] = r
     return out

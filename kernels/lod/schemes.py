@@ -1,5 +1,11 @@
-"""Leaf -> Gaussian boxes for the paper's spatial schemes (low, medium, high) and the variance
-clustering, one leaf per numba task, count-then-fill so the output never depends on threads.
+"""Leaf -> Gaussians for the paper's spatial schemes (low, medium, high) and the variance
+clustering, in parallel over leaves, count-then-fill so the output never depends on threads.
+
+Two passes: `scan_leaves` reads every active value once (value range, NaN/Inf check, level-set
+band, Gaussians per leaf), then `fill_gaussians` writes each leaf's Gaussians straight into the
+output arrays from the leaf's offset (High without any intermediate; the other schemes through a
+per-task scratch of boxes). Set mask bits are visited with count-trailing-zeros in voxel order, so
+sums and min/max ties come out exactly as a plain 0..511 loop gives them.
 
 Each Gaussian is described as a box of voxels in its leaf's local coordinates:
   c2   = lo + hi per axis (twice the local centre: the centre is on the half-voxel lattice)
@@ -11,8 +17,14 @@ Each Gaussian is described as a box of voxels in its leaf's local coordinates:
 """
 from __future__ import annotations
 
+import types
+
 import numpy as np
 from numba import njit, prange
+from numba.cpython.unsafe.numbers import trailing_zeros  # LLVM cttz: no public numba API
+
+from .levelset import in_band
+from .weights import gaussian_shape, put_centre, put_shape
 
 LOW, MEDIUM, HIGH, VARIANCE = 0, 1, 2, 3
 SCHEME_CODES = {"low": LOW, "medium": MEDIUM, "high": HIGH, "variance": VARIANCE}
@@ -117,44 +129,48 @@ def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, kind, t
                                      vals[i])
                                 k += 1
         return k - pos
-    # VARIANCE: recursive bisection of the active voxels, explicit stack (left half first)
-    top = 0
+    # VARIANCE: recursive bisection of the active voxels, explicit stack (left half first);
+    # per-node sums in arrays allocated once per leaf (allocating per node was most of the time)
     for a in range(3):
         stack[0, a] = 0
         stack[0, 3 + a] = 7
     top = 1
+    sp = np.empty(3)
+    sp2 = np.empty(3)
+    var = np.empty(3)
+    tlo = np.empty(3, np.int64)
+    thi = np.empty(3, np.int64)
     while top > 0:
         top -= 1
-        blo = stack[top, 0:3].copy()
-        bhi = stack[top, 3:6].copy()
+        x0, y0, z0, x1, y1, z1 = (stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3],
+                                  stack[top, 4], stack[top, 5])
         n = 0
-        sp = np.zeros(3)
-        sp2 = np.zeros(3)
         sv = 0.0
         sv2 = 0.0
-        tlo = np.full(3, 8, np.int64)
-        thi = np.full(3, -1, np.int64)
-        for x in range(blo[0], bhi[0] + 1):
-            for y in range(blo[1], bhi[1] + 1):
-                for z in range(blo[2], bhi[2] + 1):
+        for a in range(3):
+            sp[a], sp2[a], tlo[a], thi[a] = 0.0, 0.0, 8, -1
+        for x in range(x0, x1 + 1):
+            for y in range(y0, y1 + 1):
+                for z in range(z0, z1 + 1):
                     i = x * 64 + y * 8 + z
                     if bits[i]:
                         n += 1
                         v = np.float64(vals[i])
                         sv += v
                         sv2 += v * v
-                        p0, p1, p2 = x, y, z
-                        sp[0] += p0
-                        sp[1] += p1
-                        sp[2] += p2
-                        sp2[0] += p0 * p0
-                        sp2[1] += p1 * p1
-                        sp2[2] += p2 * p2
+                        sp[0] += x
+                        sp[1] += y
+                        sp[2] += z
+                        sp2[0] += x * x
+                        sp2[1] += y * y
+                        sp2[2] += z * z
                         tlo[0], tlo[1], tlo[2] = min(tlo[0], x), min(tlo[1], y), min(tlo[2], z)
                         thi[0], thi[1], thi[2] = max(thi[0], x), max(thi[1], y), max(thi[2], z)
         if n == 0:
             continue
-        var = sp2 / n - (sp / n) ** 2
+        for a in range(3):  # = sp2 / n - (sp / n) ** 2, bit for bit (numba squares by a multiply)
+            m = sp[a] / n
+            var[a] = sp2[a] / n - m * m
         spatial = var[0] + var[1] + var[2]
         mv = sv / n
         vvar = max(sv2 / n - mv * mv, 0.0)
@@ -229,63 +245,161 @@ def _fast_count(mrow, scheme):
     return k
 
 
+FULL = np.uint64(0xFFFFFFFFFFFFFFFF)
+FLT_MAX = np.float32(3.4028235e38)
+
+
 @njit(parallel=True, cache=True)
-def count_leaves(masks, values, order, scheme, thr_sp, thr_v2):
+def scan_leaves(masks, values, order, band, thr, scheme):
+    """The one full read of the active values. Leaf i of the canonical order is order[i]. Returns
+    lo, hi: float64 per leaf (file order): min / max of its active values (NaN ignored, +-inf when
+      none), what value_range reduces;
+    bad: bool per i: an active value is NaN or +-Inf (the caller sanitizes and scans again);
+    kept: uint64 (n, 8) per i: the voxels to cover (active, and in the level-set band if band);
+    counts: int64 per i: Gaussians of the mask-only schemes (variance: see count_leaves)."""
+    n = order.shape[0]
+    lo = np.full(masks.shape[0], np.inf)
+    hi = np.full(masks.shape[0], -np.inf)
+    bad = np.zeros(n, np.bool_)
+    kept = np.empty((n, 8), np.uint64)
+    counts = np.zeros(n, np.int64)
+    for i in prange(n):
+        li = order[i]
+        a = np.float32(np.inf)
+        c = np.float32(-np.inf)
+        nf = False
+        for w in range(8):
+            m = masks[li, w]
+            r = np.uint64(0)
+            while m:
+                b = trailing_zeros(m)
+                m &= m - np.uint64(1)
+                v = values[li, w * 64 + b]
+                a, c = min(a, v), max(c, v)
+                nf |= not (abs(v) <= FLT_MAX)
+                r |= np.uint64(in_band(v, thr)) << b
+            kept[i, w] = r if band else masks[li, w]
+        lo[li], hi[li], bad[i] = a, c, nf
+        if scheme != VARIANCE:
+            counts[i] = _fast_count(kept[i], scheme)
+    return lo, hi, bad, kept, counts
+
+
+@njit(parallel=True, cache=True)
+def count_leaves(kept, values, order, scheme, thr_sp, thr_v2):
+    """Gaussians per leaf of the variance scheme (its splits depend on the values)."""
     n = order.shape[0]
     counts = np.zeros(n, np.int64)
-    if scheme != VARIANCE:
-        for i in prange(n):
-            counts[i] = _fast_count(masks[order[i]], scheme)
-        return counts
     d8 = np.zeros((1, 3), np.int16)
     d1 = np.zeros(1, np.int32)
     df = np.zeros(1, np.float32)
     du = np.zeros(1, np.uint8)
     for i in prange(n):
-        li = order[i]
         bits = np.empty(512, np.bool_)
-        nact = _unpack(masks[li], bits)
+        nact = _unpack(kept[i], bits)
         stack = np.empty((64, 6), np.int64)
-        counts[i] = _leaf_emit(scheme, bits, nact, values[li], False, 0, d8, d8, d1, df, du,
+        counts[i] = _leaf_emit(scheme, bits, nact, values[order[i]], False, 0, d8, d8, d1, df, du,
                                thr_sp, thr_v2, stack)
     return counts
 
 
+@njit(cache=True)
+def _high_leaf(mrow, vals, k, level_set, paper, scale, out):
+    """HIGH written directly: a dense leaf as 64 2^3 blocks, else one Gaussian per voxel; centres
+    and values per Gaussian, then the shape (the same for the whole leaf) in one loop."""
+    k0 = k
+    dense = True
+    for w in range(8):
+        dense = dense and mrow[w] == FULL
+    if dense:
+        for x0 in range(0, 8, 2):
+            for y0 in range(0, 8, 2):
+                for z0 in range(0, 8, 2):
+                    s = 0.0
+                    for x in range(x0, x0 + 2):
+                        for y in range(y0, y0 + 2):
+                            for z in range(z0, z0 + 2):
+                                s += vals[x * 64 + y * 8 + z]
+                    v = np.float32(1.0) if level_set else np.float32(s / 8)
+                    put_centre(out, k, 2 * x0 + 1, 2 * y0 + 1, 2 * z0 + 1, v)
+                    k += 1
+        put_shape(out, k0, k, gaussian_shape(2, 2, 2, 1, 8.0, paper, scale), 8)
+        return
+    for w in range(8):
+        m = mrow[w]
+        while m:
+            b = trailing_zeros(m)
+            m &= m - np.uint64(1)
+            v = np.float32(1.0) if level_set else vals[w * 64 + b]
+            put_centre(out, k, 2 * w, 2 * (b >> 3), 2 * (b & 7), v)
+            k += 1
+    put_shape(out, k0, k, gaussian_shape(1, 1, 1, 1, 1.0, paper, scale), 1)
+
+
+CHUNK = 32  # leaves per parallel task: one set of scratch arrays per task, not per leaf
+
+
 @njit(parallel=True, cache=True)
-def fill_leaves(masks, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val, kind):
+def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, level_set, paper, scale,
+                   out):
+    """Every leaf's Gaussians into out (see weights.new_gaussians) at rows starts[i]..."""
+    n = order.shape[0]
+    for t in prange((n + CHUNK - 1) // CHUNK):
+        bits = np.empty(512, np.bool_)
+        stack = np.empty((64, 6), np.int64)
+        c2 = np.empty((512, 3), np.int16)
+        ext = np.empty((512, 3), np.int16)
+        nvox = np.empty(512, np.int32)
+        val = np.empty(512, np.float32)
+        kind = np.empty(512, np.uint8)
+        for i in range(t * CHUNK, min(n, t * CHUNK + CHUNK)):
+            if starts[i + 1] == starts[i]:
+                continue
+            if scheme == HIGH:
+                _high_leaf(kept[i], values[order[i]], starts[i], level_set, paper, scale, out)
+                continue
+            nact = _unpack(kept[i], bits)
+            cnt = _leaf_emit(scheme, bits, nact, values[order[i]], True, 0, c2, ext, nvox, val,
+                             kind, thr_sp, thr_v2, stack)
+            for q in range(cnt):
+                shape = gaussian_shape(ext[q, 0], ext[q, 1], ext[q, 2], kind[q],
+                                       np.float64(nvox[q]), paper, scale)
+                put_centre(out, starts[i] + q, c2[q, 0], c2[q, 1], c2[q, 2],
+                           np.float32(1.0) if level_set else val[q])
+                put_shape(out, starts[i] + q, starts[i] + q + 1, shape, nvox[q])
+
+
+@njit(parallel=True, cache=True)
+def fill_boxes(kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val, kind):
+    """Every leaf's boxes (for the merge pass, which works on boxes)."""
     n = order.shape[0]
     for i in prange(n):
-        li = order[i]
         bits = np.empty(512, np.bool_)
-        nact = _unpack(masks[li], bits)
+        nact = _unpack(kept[i], bits)
         stack = np.empty((64, 6), np.int64)
-        _leaf_emit(scheme, bits, nact, values[li], True, starts[i], c2, ext, nvox, val, kind,
+        _leaf_emit(scheme, bits, nact, values[order[i]], True, starts[i], c2, ext, nvox, val, kind,
                    thr_sp, thr_v2, stack)
 
 
-# serial twins (prange runs as range): small grids skip the parallel region, whose start-up costs
-# tens of ms when the other core is busy. Same code, same results.
+def _serial_twin(f):
+    """The same kernel compiled without threads (prange runs as range). It gets its own qualname:
+    numba's cache keys on the function's name and bytecode, not on `parallel`, so a plain
+    njit(f.py_func) would share (and load) the parallel twin's cache entry, or give it its own."""
+    py = f.py_func
+    g = types.FunctionType(py.__code__, py.__globals__, py.__name__ + "_serial", py.__defaults__,
+                           py.__closure__)
+    g.__qualname__ = py.__qualname__ + "_serial"
+    g.__doc__ = py.__doc__
+    return njit(cache=True)(g)
+
+
+# serial twins: small grids skip the parallel region, whose start-up costs tens of ms when the
+# other core is busy. Same code, same results.
 SERIAL_BELOW = 4096  # leaves
-count_leaves_serial = njit(cache=True)(count_leaves.py_func)
-fill_leaves_serial = njit(cache=True)(fill_leaves.py_func)
+_PAR = dict(scan=scan_leaves, count=count_leaves, fill=fill_gaussians, boxes=fill_boxes)
+_SER = {k: _serial_twin(f) for k, f in _PAR.items()}
 
 
-def leaf_boxes(masks, values, order, scheme, thr_sp=0.0, thr_v2=0.0):
-    """Run a scheme over the leaves in `order`. Returns (counts per leaf, dict of box arrays)."""
-    code = SCHEME_CODES[scheme] if isinstance(scheme, str) else int(scheme)
-    if len(order) < SERIAL_BELOW:
-        count_leaves, fill_leaves = count_leaves_serial, fill_leaves_serial
-    else:
-        count_leaves, fill_leaves = _count_par, _fill_par
-    counts = count_leaves(masks, values, order, code, float(thr_sp), float(thr_v2))
-    starts = np.zeros(len(counts) + 1, np.int64)
-    np.cumsum(counts, out=starts[1:])
-    m = int(starts[-1])
-    out = dict(c2=np.empty((m, 3), np.int16), ext=np.empty((m, 3), np.int16),
-               nvox=np.empty(m, np.int32), val=np.empty(m, np.float32), kind=np.empty(m, np.uint8))
-    fill_leaves(masks, values, order, starts, code, float(thr_sp), float(thr_v2), out["c2"],
-                out["ext"], out["nvox"], out["val"], out["kind"])
-    return counts, out
-
-
-_count_par, _fill_par = count_leaves, fill_leaves
+def kernels(n_leaves):
+    """The parallel kernels, or their serial twins for small grids."""
+    return _SER if n_leaves < SERIAL_BELOW else _PAR

@@ -15,6 +15,7 @@ sigma = sigma_scale * size_code, computed the same way here and in the decoder (
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 DEFAULT_SIGMA_FACTOR = 0.6
 TWO_PI_32 = (2.0 * np.pi) ** 1.5
@@ -51,3 +52,68 @@ def amplitudes(sigmas, voxels, weights, factors=None):
     if factors is not None:
         a = a * factors
     return a.astype(np.float32)
+
+
+# ---- compiled writer: what build_lod uses. Same float64 operations in the same order as the numpy
+# functions above (which the decoder uses), so both give the same bits.
+def new_gaussians(m):
+    """Empty output arrays for m Gaussians: (offsets, codes, sigmas, amplitudes, voxels, values)."""
+    return (np.empty((m, 3), np.float32), np.empty((m, 3), np.int32), np.empty((m, 3), np.float32),
+            np.empty(m, np.float32), np.empty(m, np.int32), np.empty(m, np.float32))
+
+
+@njit(cache=True, inline="always")
+def gaussian_shape(ex, ey, ez, kind, vox, paper, scale):
+    """Size codes, sigmas and amplitude of a box: edge e per axis, kind (see schemes.py), vox =
+    the voxels it stands for (float64: a 4096^3 tile does not fit int32)."""
+    bbox_rule = paper and kind == 0
+    cx = max(ex - 1, 1) if bbox_rule else ex
+    cy = max(ey - 1, 1) if bbox_rule else ey
+    cz = max(ez - 1, 1) if bbox_rule else ez
+    sx = np.float32(scale * np.float64(cx))
+    sy = np.float32(scale * np.float64(cy))
+    sz = np.float32(scale * np.float64(cz))
+    if paper:
+        amp = np.float32(1.0)
+    else:
+        amp = np.float32(vox / (TWO_PI_32 * np.float64(sx) * np.float64(sy) * np.float64(sz)))
+    return cx, cy, cz, sx, sy, sz, amp
+
+
+@njit(cache=True, inline="always")
+def put_centre(out, j, c2x, c2y, c2z, value):
+    """Offset and value of row j of out = (offsets, codes, sigmas, amplitudes, voxels, values);
+    c2 = twice the centre offset (the half-voxel lattice)."""
+    offsets, values = out[0], out[5]
+    offsets[j, 0] = np.float32(c2x) * np.float32(0.5)
+    offsets[j, 1] = np.float32(c2y) * np.float32(0.5)
+    offsets[j, 2] = np.float32(c2z) * np.float32(0.5)
+    values[j] = value
+
+
+@njit(cache=True, inline="always")
+def put_shape(out, j0, j1, shape, nvox):
+    """Rows j0..j1-1 of the same shape (from gaussian_shape) and voxel count: one tight loop."""
+    codes, sigmas, amps, voxels = out[1], out[2], out[3], out[4]
+    cx, cy, cz, sx, sy, sz, amp = shape
+    for j in range(j0, j1):
+        codes[j, 0], codes[j, 1], codes[j, 2] = cx, cy, cz
+        sigmas[j, 0], sigmas[j, 1], sigmas[j, 2] = sx, sy, sz
+        amps[j] = amp
+        voxels[j] = nvox
+
+
+@njit(cache=True)
+def boxes_to_gaussians(c2, ext, nvox, val, kind, first_tile, level_set, paper, scale, out, at):
+    """Boxes -> Gaussians at out rows at, at + 1, ...; boxes from first_tile on are tiles, whose
+    true volume (up to 4096^3) does not fit nvox. Serial: tiles are few, and the merge pass that
+    precedes it for merged boxes costs ~30x more."""
+    for k in range(c2.shape[0]):
+        if k >= first_tile:
+            vox = np.float64(ext[k, 0]) * np.float64(ext[k, 1]) * np.float64(ext[k, 2])
+        else:
+            vox = np.float64(nvox[k])
+        shape = gaussian_shape(ext[k, 0], ext[k, 1], ext[k, 2], kind[k], vox, paper, scale)
+        put_centre(out, at + k, c2[k, 0], c2[k, 1], c2[k, 2],
+                   np.float32(1.0) if level_set else val[k])
+        put_shape(out, at + k, at + k + 1, shape, nvox[k])
