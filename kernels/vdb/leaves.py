@@ -1,11 +1,16 @@
-"""Leaf buffers: one compiled scan finds every leaf's chunk, then decompress and scatter in bulk.
+"""Leaf buffers: one compiled scan finds every leaf's chunk, then one compiled (and for big grids
+parallel) loop decodes each leaf: blosc frame decoded in place (frames.py), values gathered to
+float32 bits, scattered over the leaf's 512 slots. Zip chunks are inflated first (C zlib from a
+compiled loop where found); any chunk the compiled code declines goes through the Python modules.
 
-The scan and the scatter are plain Python written for numba; without numba they still run (slowly).
+The scan and the scatter are plain Python written for numba; without numba they still run (slowly)
+and every chunk goes through the Python modules.
 """
 
 import numpy as np
 
 from .codec import COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC, COMPRESS_ZIP, HALF_LUT, decompress
+from .frames import HAVE_NUMBA, blosc_frame, inflate_all
 
 try:
     from blosc.blosc_extension import decompress_ptr as blosc_ptr
@@ -20,7 +25,8 @@ except ImportError:  # pragma: no cover - numba is optional at run time
 
     prange = range
 
-# Below this many leaves the scatter runs serially: starting threads would cost more than it saves.
+# Below this many leaves (or zip chunks) the loops run serially: starting threads would cost more
+# than it saves, and on a busy machine a parallel region can wait a whole time slice for a thread.
 PARALLEL_LEAVES = 512
 
 _POPC8 = np.array([bin(i).count("1") for i in range(256)], np.int64)
@@ -36,6 +42,14 @@ _MESSAGES = {
 }
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _u64(a, p):
+    v = np.uint64(0)
+    for k in range(8):
+        v |= np.uint64(a[p + k]) << np.uint64(8 * k)
+    return v
+
+
 @njit(cache=True, nogil=True)
 def _scan(buf, pos, end, masks, popc, mask_comp, compressed, half, stored_size, full_size,
           codes, off0, off1, seloff, chunk_off, chunk_len, counts):
@@ -44,9 +58,11 @@ def _scan(buf, pos, end, masks, popc, mask_comp, compressed, half, stored_size, 
     for i in range(n):
         if pos + 65 > end:
             return _TRUNC, pos, i
-        for k in range(64):
-            if buf[pos + k] != masks[i, k]:
-                return _MASK, pos + k, i
+        for w in range(8):  # word-wise (LLVM fuses the byte loads); bytewise only to report
+            if _u64(buf, pos + 8 * w) != _u64(masks[i], 8 * w):
+                for k in range(8 * w, 8 * w + 8):
+                    if buf[pos + k] != masks[i, k]:
+                        return _MASK, pos + k, i
         pos += 64
         code = buf[pos]
         if code > 6:
@@ -121,54 +137,6 @@ def _copy_raw(buf, chunk_off, chunk_len, pool, starts):
 
 
 @njit(cache=True, nogil=True)
-def _scatter(data, starts, masks, compact, val0, val1, sel, out):
-    """out[i, slot] = next stored value for stored slots, else the inactive value the code picks.
-
-    Branch-free per slot; ``data`` carries one padding row so the look-ahead read stays in bounds.
-    """
-    n = masks.shape[0]
-    nc = data.shape[1]
-    for i in range(n):
-        s = starts[i]
-        if not compact[i]:
-            for slot in range(512):
-                for c in range(nc):
-                    out[i, slot, c] = data[s + slot, c]
-            continue
-        for byte in range(64):
-            m = masks[i, byte]
-            q = sel[i, byte]
-            for bit in range(8):
-                slot = byte * 8 + bit
-                take = (m >> bit) & 1
-                pick = (q >> bit) & 1
-                for c in range(nc):
-                    inact = val1[i, c] if pick else val0[i, c]
-                    out[i, slot, c] = data[s, c] if take else inact
-                s += take
-
-
-@njit(cache=True, nogil=True)
-def _scatter1(data, starts, masks, compact, val0, val1, sel, out):
-    """Scalar grids: the same as _scatter on 1-D data and (N, 512) output (lets LLVM do better)."""
-    for i in range(masks.shape[0]):
-        s = starts[i]
-        if not compact[i]:
-            out[i, :] = data[s:s + 512]
-            continue
-        v0 = val0[i, 0]
-        v1 = val1[i, 0]
-        for byte in range(64):
-            m = masks[i, byte]
-            q = sel[i, byte]
-            for bit in range(8):
-                take = (m >> bit) & 1
-                inact = v1 if (q >> bit) & 1 else v0
-                out[i, byte * 8 + bit] = data[s] if take else inact
-                s += take
-
-
-@njit(cache=True, nogil=True)
 def _popcount(masks):
     out = np.zeros(masks.shape[0], np.int64)
     for i in range(masks.shape[0]):
@@ -188,11 +156,9 @@ def scan_leaves(cur, masks, flags, et):
     """Walk the leaf buffers from cur.pos (bounded by cur.end); returns the per-leaf table."""
     n = len(masks)
     popc = popcount_rows(masks)
-    t = {
-        "codes": np.zeros(n, np.uint8), "off0": np.zeros(n, np.int64), "off1": np.zeros(n, np.int64),
-        "seloff": np.zeros(n, np.int64), "chunk_off": np.zeros(n, np.int64),
-        "chunk_len": np.zeros(n, np.int64), "counts": np.zeros(n, np.int64), "popc": popc,
-    }
+    f = np.empty((6, n), np.int64)  # one block: _scan writes every field of every leaf it passes
+    t = {"codes": np.empty(n, np.uint8), "off0": f[0], "off1": f[1], "seloff": f[2],
+         "chunk_off": f[3], "chunk_len": f[4], "counts": f[5], "popc": popc}
     compressed = 2 if flags & COMPRESS_BLOSC else (1 if flags & COMPRESS_ZIP else 0)
     status, pos, i = _scan(cur.arr, cur.pos, cur.end, masks, popc, bool(flags & COMPRESS_ACTIVE_MASK),
                            compressed, et.half, et.stored_size, et.full_size, t["codes"], t["off0"],
@@ -203,8 +169,8 @@ def scan_leaves(cur, masks, flags, et):
     return t
 
 
-def _decompress_all(cur, t, counts, pool, byte_starts, flags, et):
-    idx = np.nonzero(t["chunk_len"] > 0)[0]
+def _decompress_all(cur, t, idx, pool, byte_starts, flags, et):
+    """Python path: decompress the chunks of leaves ``idx`` into pool[byte_starts[i]:...]."""
     if not len(idx):
         return
     offs = t["chunk_off"][idx].tolist()
@@ -224,62 +190,185 @@ def _decompress_all(cur, t, counts, pool, byte_starts, flags, et):
             mv.release()
         return
     ss = et.stored_size
+    counts = t["counts"]
     for i, o, n, d in zip(idx.tolist(), offs, lens, dsts):
         nb = int(counts[i]) * ss
         pool[d:d + nb] = np.frombuffer(decompress(cur, o, n, nb, flags), np.uint8)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _get(src, o, k, kind, lut):
-    """Float32 bits of stored component ``k`` of a chunk starting at byte ``o`` (half or float)."""
-    if kind == 0:
-        p = o + 2 * k
-        return lut[np.int64(src[p]) | (np.int64(src[p + 1]) << 8)]
-    p = o + 4 * k
-    return (np.uint32(src[p]) | (np.uint32(src[p + 1]) << np.uint32(8))
-            | (np.uint32(src[p + 2]) << np.uint32(16)) | (np.uint32(src[p + 3]) << np.uint32(24)))
+def _pool_for(idx, nbytes, n):
+    """A byte pool with one slot per leaf in ``idx``; pool_start is -1 for every other leaf."""
+    start = np.full(n, -1, np.int64)
+    sizes = nbytes[idx]
+    if len(idx):
+        start[idx] = np.cumsum(sizes) - sizes
+    return np.empty(max(int(sizes.sum()), 8), np.uint8), start
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _leaf(src, o, i, kind, lut, compact, masks, val0, val1, sel, outu):
-    nc = outu.shape[2]
-    if not compact:
-        for slot in range(512):
-            for c in range(nc):
-                outu[i, slot, c] = _get(src, o, slot * nc + c, kind, lut)
+def _gather(src, o, es, bs, cnt, nc, kind, lut, vals):
+    """vals[s * nc + c] = float32 bits of stored value s, component c, for s < cnt. Its bytes are
+    src[p], src[p + bs], ... from p = o + s * es + c * (2 or 4) * bs (plain: es = value size,
+    bs = 1; blosc byte-shuffled: es = 1, bs = cnt)."""
+    w = 2 if kind == 0 else 4
+    if es == 1:  # byte planes: one slice per byte lets LLVM vectorise (indexing src[p + k * bs]
+        for c in range(nc):  # directly is 3-4x slower)
+            q = o + c * w * bs
+            b0 = src[q:q + cnt]
+            b1 = src[q + bs:q + bs + cnt]
+            if kind == 0:
+                for s in range(cnt):
+                    vals[s * nc + c] = lut[np.int64(b0[s]) | (np.int64(b1[s]) << 8)]
+            else:
+                b2 = src[q + 2 * bs:q + 2 * bs + cnt]
+                b3 = src[q + 3 * bs:q + 3 * bs + cnt]
+                for s in range(cnt):
+                    vals[s * nc + c] = (np.uint32(b0[s]) | (np.uint32(b1[s]) << np.uint32(8))
+                                        | (np.uint32(b2[s]) << np.uint32(16))
+                                        | (np.uint32(b3[s]) << np.uint32(24)))
         return
+    x = src[o:o + cnt * es]  # indexing a slice from 0, not src at o + ..., lets LLVM fuse the byte
+    for s in range(cnt):     # loads into one word load and vectorise (up to 30x faster)
+        for c in range(nc):
+            p = s * es + c * w
+            if kind == 0:
+                vals[s * nc + c] = lut[np.int64(x[p]) | (np.int64(x[p + 1]) << 8)]
+            else:
+                vals[s * nc + c] = (np.uint32(x[p]) | (np.uint32(x[p + 1]) << np.uint32(8))
+                                    | (np.uint32(x[p + 2]) << np.uint32(16))
+                                    | (np.uint32(x[p + 3]) << np.uint32(24)))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _scatter(vals, i, nc, compact, masks, val0, val1, buf, sp, out):
+    """out[i, slot * nc + c]: the next stored value for an active slot, else the inactive value
+    the selection bit (mask at buf[sp:sp+64], none when sp < 0) picks. Branch-free per slot
+    (vals has one spare entry for the look-ahead). Works on 1-D row slices (cheaper indexing)."""
+    row = out[i]
+    if not compact:
+        for k in range(512 * nc):
+            row[k] = vals[k]
+        return
+    mrow = masks[i]
     s = 0
     for byte in range(64):
-        m = masks[i, byte]
-        q = sel[i, byte]
+        m = mrow[byte]
+        q = buf[sp + byte] if sp >= 0 else 0
+        if m == 255:  # whole and empty runs of 8 are common (narrow bands, dense fogs)
+            for k in range(8 * nc):
+                row[byte * 8 * nc + k] = vals[s * nc + k]
+            s += 8
+            continue
+        if m == 0 and q == 0:
+            for k in range(8 * nc):
+                row[byte * 8 * nc + k] = val0[k % nc]
+            continue
         for bit in range(8):
+            take = (m >> bit) & 1
+            pick = (q >> bit) & 1
             slot = byte * 8 + bit
-            if (m >> bit) & 1:
-                for c in range(nc):
-                    outu[i, slot, c] = _get(src, o, s * nc + c, kind, lut)
-                s += 1
-            elif (q >> bit) & 1:
-                for c in range(nc):
-                    outu[i, slot, c] = val1[i, c]
-            else:
-                for c in range(nc):
-                    outu[i, slot, c] = val0[i, c]
+            for c in range(nc):
+                inact = val1[c] if pick else val0[c]
+                row[slot * nc + c] = vals[s * nc + c] if take else inact
+            s += take
 
 
-def _decode(buf, pool, kind, lut, chunk_off, chunk_len, pool_start, masks, compact, val0, val1,
-            sel, outu, outf, mag):
-    """Convert and scatter every leaf straight from the file (raw chunks) or the pool (inflated
-    chunks) into ``outu`` (float32 bits, (N, 512, ncomp)); vec3 magnitudes go to ``mag``.
-
-    kind 0: half values, 1: float32. Every offset and length was validated by _scan and the
-    decompression before this runs.
-    """
-    nc = outu.shape[2]
-    for i in prange(masks.shape[0]):  # leaves are independent: any thread count, same result
-        if chunk_len[i] > 0:
-            _leaf(pool, pool_start[i], i, kind, lut, compact[i], masks, val0, val1, sel, outu)
+@njit(cache=True, nogil=True)
+def _values(src, o, es, bs, cnt, nc, kind, lut, vals):
+    """_gather with literal kind, es or bs for scalar grids: each call inlines into its own
+    specialised loop (combined loads when plain, vector loads across byte planes when
+    shuffled); vector grids (rarer) share one generic loop per layout."""
+    if nc != 1:
+        if bs == 1:
+            _gather(src, o, es, 1, cnt, nc, kind, lut, vals)
         else:
-            _leaf(buf, chunk_off[i], i, kind, lut, compact[i], masks, val0, val1, sel, outu)
+            _gather(src, o, 1, bs, cnt, nc, kind, lut, vals)
+    elif bs == 1:
+        if kind == 0:
+            _gather(src, o, 2, 1, cnt, 1, 0, lut, vals)
+        else:
+            _gather(src, o, 4, 1, cnt, 1, 1, lut, vals)
+    elif kind == 0:
+        _gather(src, o, 1, bs, cnt, 1, 0, lut, vals)
+    else:
+        _gather(src, o, 1, bs, cnt, 1, 1, lut, vals)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _full32(buf, p, fsz, cv):
+    """The full-precision float (fsz = 4 or 8 bytes) at buf[p] as float32; cv: 1-word scratch."""
+    bits = np.uint64(0)
+    for k in range(fsz):
+        bits |= np.uint64(buf[p + k]) << np.uint64(8 * k)
+    cv[0] = bits
+    return np.float32(cv.view(np.float64)[0]) if fsz == 8 else cv.view(np.float32)[0]
+
+
+@njit(cache=True, nogil=True)
+def _decode_task(c, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbytes, ids, masks,
+                 codes, off0, off1, seloff, bg, fsz, outu, outf, mag, status):
+    """Task c of the decode: convert and scatter leaves ids[c * _TASK:(c + 1) * _TASK] into
+    ``outu`` (float32 bits, (N, 512 * ncomp)); vec3 magnitudes go to ``mag``. A leaf's values
+    come from the file (raw chunk), the pool (pool_start >= 0: inflated before) or its blosc
+    frame, decoded here into the task's scratch. A frame the compiled decoder declines sets
+    status[i] = 1 and leaves the leaf unwritten.
+
+    Inactive slots get -bg / +bg or the values stored at off0 / off1 (fsz-byte floats) as the
+    leaf's codec code says, picked by the selection mask at seloff. kind 0: half values,
+    1: float32. Every offset and length was validated by _scan before this runs; scratch holds
+    512 float32 per component, the largest leaf.
+    """
+    nc = outf.shape[2]
+    vsize = (2 if kind == 0 else 4) * nc
+    nids = ids.shape[0]
+    a = np.empty(2048 * nc, np.uint8)
+    b = np.empty(2048 * nc, np.uint8)
+    vals = np.zeros(512 * nc + nc, np.uint32)
+    v0 = np.empty(nc, np.float32)
+    v1 = np.empty(nc, np.float32)
+    cv = np.empty(1, np.uint64)
+    zero = np.int64(0)
+    one = np.int64(1)
+    for j in range(c * _TASK, min(nids, (c + 1) * _TASK)):
+        i = ids[j]
+        cnt = nbytes[i] // vsize
+        for k in range(nc):
+            v0[k] = np.float32(bg[k]) if codes[i] == 0 else np.float32(-bg[k])
+            v1[k] = np.float32(bg[k])
+            if off0[i] >= 0:
+                v0[k] = _full32(buf, off0[i] + k * fsz, fsz, cv)
+            if off1[i] >= 0:
+                v1[k] = _full32(buf, off1[i] + k * fsz, fsz, cv)
+        o = chunk_off[i]  # values at src[o:], laid out as _gather's es / bs say
+        es = vsize
+        bs = one
+        src = pool  # a writable scratch or pool, unless in_file: then the (read-only) file
+        in_file = chunk_len[i] <= 0
+        if not in_file and pool_start[i] >= 0:
+            o = pool_start[i]
+        elif not in_file:
+            r = blosc_frame(buf, o, chunk_len[i], nbytes[i], vsize, a, b)
+            if r < 0:
+                status[i] = 1
+                continue
+            in_file = r == 1  # a stored frame: read in place after its header
+            o = o + 16 if r == 1 else zero
+            src = a if r == 0 else b
+            if r == 2:  # still byte-shuffled: read across the byte planes
+                es = one
+                bs = cnt
+        # two call sites, one per array type, with run-time arguments: numba compiles _values
+        # once for each instead of once per literal combination (each compile costs seconds)
+        if in_file:
+            _values(buf, o, es, bs, cnt, nc, kind, lut, vals)
+        else:
+            _values(src, o, es, bs, cnt, nc, kind, lut, vals)
+        v0u = v0.view(np.uint32)
+        v1u = v1.view(np.uint32)
+        if nc == 1:
+            _scatter(vals, i, 1, cnt != 512, masks, v0u, v1u, buf, seloff[i], outu)
+        else:
+            _scatter(vals, i, 3, cnt != 512, masks, v0u, v1u, buf, seloff[i], outu)
         if nc == 3:
             for slot in range(512):
                 x = outf[i, slot, 0]
@@ -288,8 +377,24 @@ def _decode(buf, pool, kind, lut, chunk_off, chunk_len, pool_start, masks, compa
                 mag[i, slot] = np.sqrt(x * x + y * y + z * z)
 
 
-_decode_serial = njit(cache=True, nogil=True)(_decode)
-_decode_parallel = njit(cache=True, nogil=True, parallel=True)(_decode)
+_TASK = 32  # leaves per task (one set of scratch buffers each)
+
+
+# Two drivers, not one function compiled twice: numba's disk cache keys entries by the Python
+# function, so a serial and a parallel build of the same function overwrite each other and the
+# "serial" one could come back parallel (thread start-up and stalls on a busy machine).
+@njit(cache=True, nogil=True)
+def _decode_serial(ntasks, *args):
+    for c in range(ntasks):
+        _decode_task(c, *args)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _decode_parallel(ntasks, *args):
+    for c in prange(ntasks):  # leaves are independent: any thread count gives the same result
+        _decode_task(np.int64(c), *args)
+
+
 _HALF_BITS = HALF_LUT.view(np.uint32)
 
 
@@ -297,43 +402,55 @@ def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
     """Decompress every leaf chunk and scatter into (N, 512, ncomp) float32.
 
     With ``magnitudes`` (an (N, 512) float32 array) vec3 grids also get their per-voxel length.
+    Blosc frames are decoded inside the compiled loop and zip chunks by C zlib in a compiled
+    loop where possible; whatever those decline goes through the Python modules, which also
+    produce the error for a corrupt chunk.
     """
     n = len(masks)
     counts = t["counts"]
     chunk_len = t["chunk_len"]
-    # only inflated chunks need a pool; raw ones are read in place
+    chunk_off = t["chunk_off"]
+    nbytes = counts * et.stored_size
+    packed = np.nonzero(chunk_len > 0)[0]
     double = not et.half and et.full.itemsize == 8
-    zlen = counts * et.stored_size if double else np.where(chunk_len > 0, counts * et.stored_size, 0)
-    pool_start = np.zeros(n, np.int64)
-    if n > 1:
-        np.cumsum(zlen[:-1], out=pool_start[1:])
-    total = int(zlen.sum())
-    pool = np.empty(max(total, 8), np.uint8)
-    _decompress_all(cur, t, counts, pool, pool_start, flags, et)
-    kind = 0 if et.half else 1
+    blosc_inline = bool(flags & COMPRESS_BLOSC) and HAVE_NUMBA and not double
     if double:  # rare: gather every chunk, convert to float32 once, then decode as float32
-        _copy_raw(cur.arr, t["chunk_off"], chunk_len, pool, pool_start)
-        pool = pool[:total].view("<f8").astype("<f4").view(np.uint8)
+        pool, pool_start = _pool_for(np.arange(n), nbytes, n)
+        _decompress_all(cur, t, packed, pool, pool_start, flags, et)
+        _copy_raw(cur.arr, chunk_off, chunk_len, pool, pool_start)
+        pool = pool[:int(nbytes.sum())].view("<f8").astype("<f4").view(np.uint8)
         pool_start = pool_start // 2
         chunk_len = np.ones(n, np.int64)
+        nbytes = nbytes // 2
+    elif blosc_inline or not len(packed):
+        pool, pool_start = _pool_for(packed[:0], nbytes, n)
+    else:  # zip (or blosc without numba): inflate into a pool first
+        pool, pool_start = _pool_for(packed, nbytes, n)
+        left = packed
+        if flags & COMPRESS_ZIP:
+            st = inflate_all(cur.arr, packed, chunk_off, chunk_len, nbytes, pool, pool_start,
+                             len(packed) >= PARALLEL_LEAVES)
+            if st is not None:
+                left = packed[st[packed] != 0]
+        _decompress_all(cur, t, left, pool, pool_start, flags, et)
+    kind = 0 if et.half else 1
     bg = np.asarray(background, np.float64).reshape(et.ncomp)
-    codes = t["codes"]
-    val0 = np.where((codes == 0)[:, None], bg, -bg).astype(np.float32)
-    val1 = np.broadcast_to(bg.astype(np.float32), (n, et.ncomp)).copy()
-    for off, dst in ((t["off0"], val0), (t["off1"], val1)):
-        idx = np.nonzero(off >= 0)[0]
-        if len(idx):
-            raw = cur.arr[off[idx, None] + np.arange(et.full_size)]
-            dst[idx] = raw.copy().view(et.full).reshape(len(idx), et.ncomp).astype(np.float32)
-    sel = np.zeros((n, 64), np.uint8)
-    idx = np.nonzero(t["seloff"] >= 0)[0]
-    if len(idx):
-        sel[idx] = cur.arr[t["seloff"][idx, None] + np.arange(64)]
-    compact = counts != 512
     out = np.empty((n, 512, et.ncomp), np.float32)
     if magnitudes is None:
         magnitudes = np.empty((n if et.ncomp == 3 else 0, 512), np.float32)
-    decode = _decode_parallel if n >= PARALLEL_LEAVES else _decode_serial
-    decode(cur.arr, pool, kind, _HALF_BITS, t["chunk_off"], chunk_len, pool_start, masks, compact,
-            val0.view(np.uint32), val1.view(np.uint32), sel, out.view(np.uint32), out, magnitudes)
+    status = np.zeros(n, np.uint8)
+
+    def run(ids, pool, pool_start):
+        decode = _decode_parallel if len(ids) >= PARALLEL_LEAVES else _decode_serial
+        decode((len(ids) + _TASK - 1) // _TASK, cur.arr, pool, kind, _HALF_BITS, chunk_off,
+               chunk_len, pool_start, nbytes, ids, masks, t["codes"], t["off0"], t["off1"],
+               t["seloff"], bg, et.full.itemsize, out.view(np.uint32).reshape(n, 512 * et.ncomp),
+               out, magnitudes, status)
+
+    run(np.arange(n), pool, pool_start)
+    declined = np.nonzero(status)[0]
+    if len(declined):  # frames the compiled decoder would not take: the blosc module decides
+        pool, pool_start = _pool_for(declined, nbytes, n)
+        _decompress_all(cur, t, declined, pool, pool_start, flags, et)
+        run(declined, pool, pool_start)
     return out

@@ -22,6 +22,7 @@ NATIVE_MIN_VERSION = 222   # node-mask compression era; older files go to the bi
 MAX_KNOWN_VERSION = 225
 DEFAULT_MAX_BYTES = int(os.environ.get("GAUSSVDB_MAX_BYTES", 16 << 30))
 _SEP = "\x1e"
+_I64_MAX = int(np.iinfo(np.int64).max)
 _CLASSES = {"fog volume": "fog_volume", "level set": "level_set", "staggered": "staggered"}
 _TYPE_RE = re.compile(r"^Tree_(\w+?)_5_4_3$")
 _SKIP_REASONS = {
@@ -99,35 +100,47 @@ def _value_type(tname):
 
 
 @njit(cache=True, nogil=True)
-def _leaf_bbox(origins, masks, lo, hi):
-    """Fold the inclusive index bbox of every set mask bit into lo/hi (int64 (3,) each)."""
-    for i in range(masks.shape[0]):
+def _leaf_bbox(origins, words, lo, hi):
+    """Fold the inclusive index bbox of every set mask bit into lo/hi (int64 (3,) each).
+
+    words: (N, 8) uint64 masks; word x holds row y in byte y, bit z. Per leaf only the extreme
+    set x, y and z matter: x from the nonzero words, y from the bytes of their OR, z from the
+    OR of those bytes.
+    """
+    for i in range(words.shape[0]):
+        xs = 0
+        w = np.uint64(0)
         for x in range(8):
-            for y in range(8):
-                b = masks[i, x * 8 + y]
-                if b == 0:
-                    continue
-                z0 = 0
-                while not (b >> z0) & 1:
-                    z0 += 1
-                z1 = 7
-                while not (b >> z1) & 1:
-                    z1 -= 1
-                for axis, a0, a1 in ((0, x, x), (1, y, y), (2, z0, z1)):
-                    v0 = np.int64(origins[i, axis]) + a0
-                    v1 = np.int64(origins[i, axis]) + a1
-                    if v0 < lo[axis]:
-                        lo[axis] = v0
-                    if v1 > hi[axis]:
-                        hi[axis] = v1
+            if words[i, x]:
+                xs |= 1 << x
+                w |= words[i, x]
+        if xs == 0:
+            continue
+        ys = 0
+        zs = 0
+        for y in range(8):
+            b = np.int64((w >> np.uint64(8 * y)) & np.uint64(255))
+            if b:
+                ys |= 1 << y
+                zs |= b
+        for axis, m in ((0, xs), (1, ys), (2, zs)):
+            a0 = 0
+            while not (m >> a0) & 1:
+                a0 += 1
+            a1 = 7
+            while not (m >> a1) & 1:
+                a1 -= 1
+            o = np.int64(origins[i, axis])
+            lo[axis] = min(lo[axis], o + a0)
+            hi[axis] = max(hi[axis], o + a1)
 
 
 def _bbox(origins, masks_u8, tile_origins, tile_sizes, tile_active):
-    lo = np.full(3, np.iinfo(np.int64).max, np.int64)
-    hi = np.full(3, np.iinfo(np.int64).min, np.int64)
+    lo = np.full(3, _I64_MAX, np.int64)
+    hi = np.full(3, -_I64_MAX - 1, np.int64)
     if len(origins):
-        _leaf_bbox(np.ascontiguousarray(origins), np.ascontiguousarray(masks_u8), lo, hi)
-    if tile_active.any():
+        _leaf_bbox(np.ascontiguousarray(origins), np.ascontiguousarray(masks_u8).view("<u8"), lo, hi)
+    if len(tile_active) and tile_active.any():
         to = tile_origins[tile_active].astype(np.int64)
         ts = tile_sizes[tile_active].astype(np.int64)[:, None]
         lo = np.minimum(lo, to.min(axis=0))
@@ -176,14 +189,19 @@ class _Reader:
         lo, hi = _bbox(topo.leaf_origins, topo.leaf_masks, topo.tile_origins, topo.tile_sizes,
                        topo.tile_active)
         leaf_count = int((topo.popc if topo.popc is not None else popcount_rows(topo.leaf_masks)).sum())
-        tile_count = int(np.sum(topo.tile_sizes[topo.tile_active].astype(np.int64) ** 3))
+        tile_count = 0
+        if len(topo.tile_active) and topo.tile_active.any():
+            tile_count = int(np.sum(topo.tile_sizes[topo.tile_active].astype(np.int64) ** 3))
         active = leaf_count + tile_count
         expected = meta.get("file_voxel_count")
         if isinstance(expected, int) and expected != active:
             raise cur.error(f"active voxel count {active} differs from the file's "
                             f"file_voxel_count {expected}", start)
         bgv = topo.background.astype(np.float64)
-        mag = lambda a: np.sqrt((a.astype(np.float64) ** 2).sum(axis=-1)) if a.shape[-1] > 1 else a[..., 0]
+
+        def mag(a):
+            return np.sqrt((a.astype(np.float64) ** 2).sum(axis=-1)) if a.shape[-1] > 1 else a[..., 0]
+
         self.info[name] = {"map": map_kind, "metadata": meta, "byte_range": (start, cur.end),
                            "unique_name": d["unique"], "instance_of": d["parent"] or None,
                            "leaf_count": len(topo.leaf_origins)}

@@ -1,5 +1,7 @@
 """Index-to-world maps stored in a grid's transform, as float64 4x4 column-vector matrices."""
 
+import struct
+
 import numpy as np
 
 # Map type name -> number of Vec3d stored after it (see openvdb/math/Maps.h read()).
@@ -19,16 +21,18 @@ def read_transform(cur):
     """
     start = cur.pos
     kind = cur.string("transform map type", limit=256)
-    m = np.eye(4)
-    if kind in _VEC3_COUNT:
-        v = cur.array("<f8", 3 * _VEC3_COUNT[kind], "transform").reshape(-1, 3)
+    nvec = _VEC3_COUNT.get(kind)
+    if nvec is not None:
+        cur.need(24 * nvec, "transform")  # plain struct reads: numpy calls cost more than the maths
+        v = struct.unpack_from(f"<{3 * nvec}d", cur.buf, cur.pos)
+        cur.pos += 24 * nvec
         if kind == "TranslationMap":
-            m[:3, 3] = v[0]
+            t, d = v[0:3], (1.0, 1.0, 1.0)
         elif kind.endswith("TranslateMap"):
-            m[:3, 3] = v[0]
-            m[[0, 1, 2], [0, 1, 2]] = v[1]
+            t, d = v[0:3], v[3:6]
         else:
-            m[[0, 1, 2], [0, 1, 2]] = v[0]
+            t, d = (0.0, 0.0, 0.0), v[0:3]
+        m = np.array([[d[0], 0, 0, t[0]], [0, d[1], 0, t[1]], [0, 0, d[2], t[2]], [0, 0, 0, 1.0]])
     elif kind in ("AffineMap", "UnitaryMap"):
         # Mat4d in OpenVDB's row-vector convention (translation in the last row): transpose.
         m = cur.array("<f8", 16, "transform").reshape(4, 4).T.copy()
@@ -37,6 +41,6 @@ def read_transform(cur):
                         "the map is not affine", start)
     else:
         raise cur.error(f"unknown transform map type {kind!r}", start)
-    if not np.all(np.isfinite(m)):
+    if not np.isfinite(m).all():
         raise cur.error("transform holds non-finite numbers", start)
     return m, kind

@@ -1,14 +1,27 @@
 """Tree topology (root, two internal levels, leaf masks) of a standard 5-4-3 tree, v >= 222.
 
-Python reads each internal node's header and values codec; one compiled pass per node then expands
-the codec slot by slot and picks out tiles and children (no per-node numpy temporaries).
+Fast path: one compiled walk (_walk) reads every internal node below the root: header, values
+codec (raw or blosc-LZ4 chunks), tiles, children and leaf masks, with no Python per node (Python
+cost ~100 us a node, a third of a big level set's read). Whatever it does not handle (zip chunks,
+frames it declines) or finds wrong, it hands back untouched to the Python walk below, which reads
+each node's header and codec in Python and runs one compiled pass per node (_node_scan); that
+walk also raises the precise errors.
 """
 
 import threading
 
 import numpy as np
 
-from .codec import inactive_values, popcount_bytes, read_node_parts
+from .codec import (
+    COMPRESS_ACTIVE_MASK,
+    COMPRESS_BLOSC,
+    COMPRESS_ZIP,
+    HALF_LUT,
+    inactive_values,
+    popcount_bytes,
+    read_node_parts,
+)
+from .frames import HAVE_NUMBA, blosc_frame, copy_bytes
 
 try:
     from numba import njit
@@ -37,12 +50,13 @@ class Topology:
         self.end = 0
         self.popc = None  # per-leaf active counts, once the leaf scan has computed them
 
-    def finish(self, ncomp):
+    def finish(self, ncomp, owned=False):
+        """Concatenate the parts; ``owned``: no part is a view of the file (no copy needed)."""
         def cat(parts, shape, dtype):
             if not parts:
                 return np.zeros(shape, dtype)
             if len(parts) == 1:
-                return parts[0].astype(dtype)  # always a copy: never a view of the file
+                return parts[0].astype(dtype, copy=not owned)  # never a view of the file
             return np.concatenate(parts).astype(dtype, copy=False)
         self.leaf_origins = cat(self.leaf_origins, (0, 3), np.int32)
         self.leaf_masks = cat(self.leaf_masks, (0, 64), np.uint8)
@@ -189,6 +203,242 @@ def _internal(cur, topo, level, origin, flags, et, bg):
         _internal(cur, topo, 1, o, flags, et, bg)
 
 
+@njit(cache=True, nogil=True)
+def _full_bits(buf, p, fsz):
+    """Bit pattern of the full-precision float (fsz = 4 or 8 bytes) at buf[p], as uint64."""
+    v = np.uint64(0)
+    for k in range(fsz):
+        v |= np.uint64(buf[p + k]) << np.uint64(8 * k)
+    return v
+
+
+@njit(cache=True, nogil=True)
+def _codec(buf, pos, end, nslots, vmask, nc, fsz, half, mask_comp, comp, lut, bg):
+    """Parse one internal node's values codec at pos (as read_node_parts does).
+
+    Returns (ok, pos, data (count, nc) uint64 bits, val0, val1, sel (nslots // 64) uint64 words);
+    ok False when the Python walk must take over (zip chunk, declined frame, anything wrong).
+    """
+    data = np.zeros((0, nc), np.uint64)
+    val0 = bg.copy()
+    val1 = bg.copy()
+    sel = np.zeros(nslots // 64, np.uint64)
+    if pos >= end:
+        return False, pos, data, val0, val1, sel
+    code = buf[pos]
+    pos += 1
+    if code > 6:
+        return False, pos, data, val0, val1, sel
+    sign = np.uint64(1) << np.uint64(8 * fsz - 1)
+    if code != 0:  # the codes that store no val0 mean -background (code 0: +background)
+        for c in range(nc):
+            val0[c] = bg[c] ^ sign
+    nstore = 2 if code == 5 else (1 if code == 2 or code == 4 else 0)
+    if pos + nstore * nc * fsz > end:
+        return False, pos, data, val0, val1, sel
+    for k in range(nstore):
+        for c in range(nc):
+            b = _full_bits(buf, pos, fsz)
+            pos += fsz
+            if k == 0:
+                val0[c] = b
+            else:
+                val1[c] = b
+    if code >= 3 and code <= 5:
+        if pos + nslots // 8 > end:
+            return False, pos, data, val0, val1, sel
+        for w in range(nslots // 64):
+            sel[w] = _full_bits(buf, pos + 8 * w, 8)
+        pos += nslots // 8
+    count = nslots
+    if mask_comp and code != 6:
+        count = 0
+        for w in range(vmask.shape[0]):
+            x = vmask[w]
+            while x:  # popcount
+                x &= x - np.uint64(1)
+                count += 1
+    ssz = 2 if half else fsz
+    vsize = ssz * nc
+    nbytes = count * vsize
+    data = np.zeros((count, nc), np.uint64)
+    if half and count < 1:
+        return True, pos, data, val0, val1, sel  # half writers store nothing for no values
+    src = buf
+    o = pos
+    es = vsize
+    bs = 1
+    if comp != 0:
+        if pos + 8 > end:
+            return False, pos, data, val0, val1, sel
+        size = np.int64(_full_bits(buf, pos, 8))
+        pos += 8
+        o = pos
+        if size <= 0:
+            if -size != nbytes:
+                return False, pos, data, val0, val1, sel
+            pos += nbytes
+        else:
+            if comp != 2 or size > end - pos:
+                return False, pos, data, val0, val1, sel  # zip: left to Python's zlib
+            a = np.empty(max(nbytes, 1), np.uint8)
+            t = np.empty(max(nbytes, 1), np.uint8)
+            r = blosc_frame(buf, pos, size, nbytes, vsize, a, t)
+            if r < 0:
+                return False, pos, data, val0, val1, sel
+            if r == 0:
+                src, o = a, 0
+            elif r == 1:
+                o = pos + 16
+            else:
+                src, o, es, bs = t, 0, 1, count
+            pos += size
+    else:
+        pos += nbytes
+    if pos > end:
+        return False, pos, data, val0, val1, sel
+    for e in range(count):
+        for c in range(nc):
+            p = o + e * es + c * ssz * bs
+            if half:
+                data[e, c] = np.uint64(lut[np.int64(src[p]) | (np.int64(src[p + bs]) << 8)])
+            else:
+                v = np.uint64(0)
+                for k in range(fsz):
+                    v |= np.uint64(src[p + k * bs]) << np.uint64(8 * k)
+                data[e, c] = v
+    return True, pos, data, val0, val1, sel
+
+
+@njit(cache=True, nogil=True)
+def _walk(buf, pos, end, nchild, nc, fsz, half, mask_comp, comp, lut, bg, sxyz, sbits, sact, kids,
+          grand, leaf_cap):
+    """Every root child's subtree (level-2 node, its level-1 nodes, their leaf masks) in file
+    order, tiles in the order the Python walk appends them. Values are uint64 bit patterns of the
+    full type. sxyz/sbits/sact (32768 rows), kids (32768, 3), grand (4096, 3): reused scratch.
+    Returns (ok, pos, leaf_xyz, leaf_masks, tiles); tiles rows: x, y, z, size, active, value
+    bits per component. ok False: hand over to the Python walk from the start.
+    (Explicit loops rather than slice assignment keep numba's compile time down.)"""
+    # every leaf mask takes 64 bytes here, so this bound rarely needs growing; pages the walk
+    # never touches cost nothing (capped at leaf_cap: some systems commit all they allocate)
+    cap = min((end - pos) // 64 + 1, leaf_cap)
+    lxyz = np.empty((cap, 3), np.int32)
+    lmask = np.empty((cap, 64), np.uint8)
+    tiles = np.empty((16, 5 + nc), np.int64)
+    nl = 0
+    nt = 0
+    origin = np.zeros(3, np.int64)
+    fail = (False, pos, lxyz, lmask, tiles)
+    for r in range(nchild):
+        if pos + 12 > end:
+            return fail
+        for k in range(3):
+            v = np.int64(_full_bits(buf, pos + 4 * k, 4))
+            origin[k] = v - (v >> 31 << 32)  # int32
+            if origin[k] % 4096:
+                return fail
+        pos += 12
+        nkids = 0
+        for level in (2, 1):
+            todo = 1 if level == 2 else nkids
+            log2 = 5 if level == 2 else 4
+            edge = 128 if level == 2 else 8
+            nslots = 1 << (3 * log2)
+            for q in range(todo):
+                o = origin if level == 2 else kids[q]
+                if pos + nslots // 4 > end:
+                    return fail
+                cmask = buf[pos:pos + nslots // 8].view(np.uint64)
+                vmask = buf[pos + nslots // 8:pos + nslots // 4].view(np.uint64)
+                pos += nslots // 4
+                ok, pos, data, val0, val1, sel = _codec(buf, pos, end, nslots, vmask, nc, fsz, half,
+                                                        mask_comp, comp, lut, bg)
+                if not ok:
+                    return fail
+                out = kids if level == 2 else grand
+                t, nch, big = _node_scan(cmask, vmask, sel, data, data.shape[0] == nslots, val0,
+                                         val1, bg, log2, edge, o, sxyz, sbits, sact, out)
+                if big > _ORIGIN_LIMIT:
+                    return fail
+                if nt + t > tiles.shape[0]:  # grow by doubling
+                    more = np.empty((max(nt + t, 2 * nt), 5 + nc), np.int64)
+                    for k in range(nt):
+                        for j in range(5 + nc):
+                            more[k, j] = tiles[k, j]
+                    tiles = more
+                for k in range(t):
+                    for j in range(3):
+                        tiles[nt + k, j] = sxyz[k, j]
+                    tiles[nt + k, 3] = edge
+                    tiles[nt + k, 4] = sact[k]
+                    for j in range(nc):
+                        tiles[nt + k, 5 + j] = np.int64(sbits[k, j])
+                nt += t
+                if level == 2:
+                    nkids = nch
+                    continue
+                if pos + 64 * nch > end:
+                    return fail
+                if nl + nch > lxyz.shape[0]:  # grow by doubling
+                    more = np.empty((max(nl + nch, 2 * nl), 3), np.int32)
+                    mmore = np.empty((more.shape[0], 64), np.uint8)
+                    for k in range(nl):
+                        for j in range(3):
+                            more[k, j] = lxyz[k, j]
+                    copy_bytes(mmore.reshape(-1), 0, lmask.reshape(-1), 0, 64 * nl)
+                    lxyz = more
+                    lmask = mmore
+                for k in range(nch):
+                    for j in range(3):
+                        lxyz[nl + k, j] = grand[k, j]
+                copy_bytes(lmask.reshape(-1), 64 * nl, buf, pos, 64 * nch)  # masks lie back to back
+                pos += 64 * nch
+                nl += nch
+    return True, pos, lxyz[:nl].copy(), lmask[:nl].copy(), tiles[:nt]
+
+
+def _compiled_walk(cur, topo, flags, et, bg, nchild):
+    """Run _walk from cur.pos; on success fill topo and move cur, else leave both untouched."""
+    if not HAVE_NUMBA or et.full.itemsize not in (4, 8) or (et.half and et.full.itemsize == 8):
+        return False  # half-stored doubles: rare, left to the Python walk
+    comp = 2 if flags & COMPRESS_BLOSC else (1 if flags & COMPRESS_ZIP else 0)
+    u = np.uint32 if et.full.itemsize == 4 else np.uint64
+    bgb = bg.view(u).astype(np.uint64)
+    sxyz, sbits, sact, kids = _buffers(32768, et.ncomp, np.uint64)
+    grand = _buffers(4096, et.ncomp, np.uint64)[3]
+    ok, pos, lxyz, lmask, tiles = _walk(
+        cur.arr, cur.pos, cur.end, nchild, et.ncomp, et.full.itemsize, et.half,
+        bool(flags & COMPRESS_ACTIVE_MASK), comp, _HALF_BITS, bgb, sxyz, sbits, sact, kids, grand,
+        _LEAF_CAP)
+    if not ok:
+        return False
+    cur.pos = int(pos)
+    topo.leaf_origins.append(lxyz)
+    topo.leaf_masks.append(lmask)
+    if len(tiles):
+        topo.tile_origins.append(tiles[:, :3].astype(np.int32))
+        topo.tile_sizes.append(tiles[:, 3].astype(np.int32))
+        topo.tile_active.append(tiles[:, 4] != 0)
+        bits = np.ascontiguousarray(tiles[:, 5:]).view(np.uint64).astype(u)
+        topo.tile_values.append(bits.view(et.full).astype(np.float64))
+    return True
+
+
+_HALF_BITS = HALF_LUT.view(np.uint32)
+_LEAF_CAP = 1 << 16  # leaves the compiled walk makes room for before it grows its arrays
+
+
+_TILE_DTYPES = {}
+
+
+def _tile_dtype(full, ncomp):
+    """Root tile record: i32 x 3 origin, value, u8 active (cached: building it costs ~20 us)."""
+    dt = _TILE_DTYPES.get((full, ncomp))
+    if dt is None:
+        dt = _TILE_DTYPES[(full, ncomp)] = np.dtype([("o", "<i4", 3), ("v", full, (ncomp,)), ("a", "u1")])
+    return dt
+
+
 def read_tree_topology(cur, flags, et):
     """Parse Tree::readTopology; returns a Topology. ``cur`` is left at the first leaf buffer."""
     topo = Topology()
@@ -200,7 +450,7 @@ def read_tree_topology(cur, flags, et):
     topo.background = bg
     ntiles = cur.u32("root tile count")
     nchild = cur.u32("root child count")
-    tile_dt = np.dtype([("o", "<i4", 3), ("v", et.full, (et.ncomp,)), ("a", "u1")])
+    tile_dt = _tile_dtype(et.full, et.ncomp)
     # Each root child needs at least its origin and two 4096-byte masks: bound the counts first.
     if ntiles * tile_dt.itemsize + nchild * (12 + 8192) > cur.remaining():
         raise cur.error(f"absurd root counts: {ntiles} tiles, {nchild} children", cur.pos - 8)
@@ -210,6 +460,9 @@ def read_tree_topology(cur, flags, et):
         topo.tile_sizes.append(np.full(ntiles, ROOT_TILE_SIZE, np.int32))
         topo.tile_values.append(t["v"].astype(np.float64).reshape(ntiles, et.ncomp))
         topo.tile_active.append(t["a"] != 0)
+    if _compiled_walk(cur, topo, flags, et, bg, nchild):
+        topo.end = cur.pos
+        return topo.finish(et.ncomp, owned=True)
     for _ in range(nchild):
         at = cur.pos
         o = cur.array("<i4", 3, "root child origin").astype(np.int64)
