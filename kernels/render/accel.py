@@ -11,6 +11,7 @@ ascending Gaussian id. All objects are packed into flat arrays with global ids.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 LEAF = 8
 NODE_LEAVES = 16
@@ -145,7 +146,6 @@ def build_gauss_accel(objects, support_k):
             key = ((cx - cmin[0]) * cdim[1] + (cy - cmin[1])) * cdim[2] + (cz - cmin[2])
             order = np.argsort(key, kind="stable")  # keeps ascending gid within a cell
             key, gid = key[order], gid[order]
-            cpos = np.stack([cx[order], cy[order], cz[order]], axis=1)
             ukey, ufirst, ucount = np.unique(key, return_index=True, return_counts=True)
             cxyz = np.stack([ukey // (cdim[1] * cdim[2]) + cmin[0],
                              (ukey // cdim[2]) % cdim[1] + cmin[1],
@@ -155,8 +155,8 @@ def build_gauss_accel(objects, support_k):
             chis.append(chi)
             starts.append(starts[-1][-1] + np.cumsum(ucount))
             items.append((gid + g_off).astype(np.int32))
-            faces.append(_face_lists(np.repeat(np.arange(ukey.size), ucount), cpos, clo[gid], chi[gid],
-                                     gid + g_off, acc.n_cells - ukey.size))
+            faces.append(_face_lists(np.repeat(np.arange(ukey.size), ucount), cx[order], cy[order],
+                                     cz[order], gid, clo, chi, ukey.size, g_off))
         mus.append(mu)
         invs.append(1.0 / sig)
         vals.append(v)
@@ -167,10 +167,10 @@ def build_gauss_accel(objects, support_k):
     acc.finish()
     acc.cell_start = np.concatenate(starts).astype(np.int64)
     acc.cell_items = np.concatenate(items) if items else np.zeros(0, np.int32)
-    fkeys = np.concatenate([f[0] for f in faces]) if faces else np.zeros(0, np.int64)
     acc.face_items = np.concatenate([f[1] for f in faces]) if faces else np.zeros(0, np.int32)
     acc.face_start = np.zeros(6 * acc.n_cells + 1, np.int64)
-    np.cumsum(np.bincount(fkeys, minlength=6 * acc.n_cells), out=acc.face_start[1:])
+    if faces:  # cells are numbered object by object, so the per-object counts line up
+        np.cumsum(np.concatenate([f[0] for f in faces]), out=acc.face_start[1:])
     acc.g_mu = np.ascontiguousarray(np.concatenate(mus)) if mus else np.zeros((0, 3))
     acc.g_inv = np.ascontiguousarray(np.concatenate(invs)) if invs else np.zeros((0, 3))
     acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
@@ -196,20 +196,33 @@ def build_gauss_accel(objects, support_k):
     return acc
 
 
-def _face_lists(cell, cpos, clo, chi, gid, first_cell):
+@njit(cache=True, nogil=True)
+def _face_lists(cell, cx, cy, cz, gid, clo, chi, n_cells, g_off):
     """Per (cell, entry face) the Gaussians first met there by a ray coming from the face
     neighbour: face 2a when moving +a (the support box starts at this cell on axis a), 2a+1 when
-    moving -a (it ends here). Returns (cell * 6 + face keys, ids) sorted by key, ids ascending."""
-    keys, ids = [], []
-    for a in range(3):
-        for f, edge in ((2 * a, clo), (2 * a + 1, chi)):
-            sel = cpos[:, a] == edge[:, a]
-            keys.append((cell[sel] + first_cell) * 6 + f)
-            ids.append(gid[sel])
-    keys = np.concatenate(keys)
-    ids = np.concatenate(ids)
-    order = np.argsort(keys, kind="stable")  # stable: ids stay ascending within a key
-    return keys[order], ids[order].astype(np.int32)
+    moving -a (it ends here). Pairs come in cell order, ids ascending within a cell, so a counting
+    sort keeps the ids ascending per list. Returns (entries per key cell * 6 + face, ids)."""
+    counts = np.zeros(6 * n_cells, np.int64)
+    for p in range(cell.size):
+        g = gid[p]
+        c = (cx[p], cy[p], cz[p])
+        for a in range(3):
+            if c[a] == clo[g, a]:
+                counts[6 * cell[p] + 2 * a] += 1
+            if c[a] == chi[g, a]:
+                counts[6 * cell[p] + 2 * a + 1] += 1
+    cur = np.cumsum(counts) - counts
+    out = np.empty(counts.sum(), np.int32)
+    for p in range(cell.size):
+        g = gid[p]
+        c = (cx[p], cy[p], cz[p])
+        for a in range(3):
+            for f, edge in ((2 * a, clo[g, a]), (2 * a + 1, chi[g, a])):
+                if c[a] == edge:
+                    k = 6 * cell[p] + f
+                    out[cur[k]] = g + g_off
+                    cur[k] += 1
+    return counts, out
 
 
 def gaussian_arrays_empty():
