@@ -10,6 +10,7 @@ nothing was hit; level sets contribute no value).
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 from abc import ABC, abstractmethod
@@ -68,13 +69,7 @@ class CPUDevice(Device):
     name = "CPU"
 
     def __init__(self, threads=None, cache_dir=None, tile_rows=32):
-        if cache_dir:
-            set_cache_dir(cache_dir)
-        elif not __name__.startswith("kernels.") and "NUMBA_CACHE_DIR" not in os.environ:
-            # Imported as an extension package (bl_ext....): numba pickles the module name into
-            # its cache entries, so never share the source-tree __pycache__ with plain Python.
-            import tempfile
-            set_cache_dir(os.path.join(tempfile.gettempdir(), "gaussvdb_numba_" + __name__.replace(".", "_")))
+        _choose_cache_dir(cache_dir)
         from . import _cpu  # noqa: F401  (compiles or loads cached kernels lazily on first call)
         self._k = _cpu
         self.threads = threads
@@ -231,29 +226,39 @@ class CPUDevice(Device):
             g_col = np.zeros((1, 3))
             bricks, cell_xyz = acc.bricks, acc.cell_xyz
             cell_start, cell_items = np.zeros(2, np.int64), np.zeros(1, np.int32)
+            face_start, face_items = np.zeros(7, np.int64), np.zeros(1, np.int32)
             g_mu = g_inv = np.zeros((1, 3))
             g_val, g_obj, g_volfac = np.zeros(1), np.zeros(1, np.int32), np.zeros(1)
-            max_hits = 1
+            g_clo = g_chi = np.zeros((1, 3), np.int64)
+            g_rec = np.zeros((1, 8))
+            g_sph, obj_ref = np.zeros((1, 4), np.float32), np.zeros((max(1, len(scene.objects)), 3))
         else:
             acc = self.gacc
             g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, obj_ls)
             bricks = np.zeros((1, 10, 10, 10), np.float32)
             cell_xyz = acc.cell_xyz if acc.cell_xyz.size else np.zeros((1, 3), np.int64)
             cell_start, cell_items = acc.cell_start, acc.cell_items
+            face_start, face_items = acc.face_start, acc.face_items
             g_mu, g_inv, g_val, g_obj, g_volfac = acc.g_mu, acc.g_inv, acc.g_val, acc.g_obj, acc.g_volfac
+            g_clo, g_chi = acc.g_clo, acc.g_chi
             if g_mu.shape[0] == 0:
                 g_mu = g_inv = np.zeros((1, 3))
                 g_val, g_obj, g_volfac, g_w = np.zeros(1), np.zeros(1, np.int32), np.zeros(1), np.zeros(1)
                 g_col = np.zeros((1, 3))
-                cell_items = np.zeros(1, np.int32)
-            max_hits = max(1, acc.max_list * max(1, len(scene.objects)))
+                cell_items = face_items = np.zeros(1, np.int32)
+                g_clo = g_chi = np.zeros((1, 3), np.int64)
+            # what the per-ray Gaussian test reads, one 64-byte row each: centre, 1/sigma, weight
+            g_rec = np.zeros((g_mu.shape[0], 8))
+            g_rec[:, 0:3], g_rec[:, 3:6], g_rec[:, 6] = g_mu, g_inv, g_w
+            g_sph, obj_ref = self.gacc.g_sph, self.gacc.obj_ref
+            if g_sph.shape[0] == 0:
+                g_sph = np.zeros((1, 4), np.float32)
         cell_skip = self._cell_skip(mode, acc, g_w, tfs, obj_tf, obj_kind)
         bg = np.asarray(scene.background, np.float64).ravel()
         bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
         settings = np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
                              float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
-                             float(scene.paper_steps), float(scene.paper_max_depth),
-                             float(scene.sweep_max)])
+                             float(scene.paper_steps), float(scene.paper_max_depth)])
         cam = camera.packed()
         r0, r1 = (0, camera.height) if rows is None else (int(rows[0]), int(rows[1]))
         nr, W = r1 - r0, camera.width
@@ -277,11 +282,12 @@ class CPUDevice(Device):
                 o_rgba = np.empty((b - a, W, 4))
                 o_depth = np.empty((b - a, W))
                 o_value = np.empty((b - a, W))
-                self._k.render_rows(mode, cam, r0 + a, r0 + b, self.w2i, acc.node_min, acc.node_dims,
-                                    acc.node_off, acc.node_table, acc.node_cells, cell_skip,
-                                    cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
-                                    g_volfac, bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step,
-                                    tf_lut, tf_par, settings, acc.max_walk, max_hits,
+                self._k.render_rows(mode, cam, r0 + a, r0 + b, self.w2i, acc.node_min,
+                                    acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
+                                    cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
+                                    g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph,
+                                    obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf,
+                                    obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
                                     o_rgba, o_depth, o_value, segs[a:b])
                 rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
                 a = b
@@ -314,6 +320,39 @@ def _resample(t: TransferFunction) -> TransferFunction:
     xp = np.linspace(0, 1, t.lut.shape[0])
     lut = np.stack([np.interp(x, xp, t.lut[:, c]) for c in range(4)], axis=1)
     return TransferFunction(lut, t.vmin, t.vmax, t.log_scale, t.density)
+
+
+_cache_chosen = False
+
+
+def kernel_tag():
+    """Hash of the kernel sources. numba's cache only notices edits to a function's own file, and
+    the kernels call across modules (_cpu*.py), so each version of them gets its own cache folder."""
+    h = hashlib.sha1()
+    here = os.path.dirname(os.path.abspath(__file__))
+    for name in sorted(os.listdir(here)):
+        if name.startswith("_cpu") and name.endswith(".py"):
+            with open(os.path.join(here, name), "rb") as fh:
+                h.update(fh.read())
+    return h.hexdigest()[:12]
+
+
+def _choose_cache_dir(cache_dir):
+    """Once per process, before the kernels are imported: the given folder, else NUMBA_CACHE_DIR,
+    else (imported as an extension package, whose module name numba pickles into its entries) a
+    temporary folder, else the package's __pycache__; always in a subfolder per kernel_tag()."""
+    global _cache_chosen
+    if _cache_chosen:
+        return
+    base = cache_dir or os.environ.get("NUMBA_CACHE_DIR")
+    if not base:
+        if __name__.startswith("kernels."):
+            base = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__", "numba")
+        else:
+            import tempfile
+            base = os.path.join(tempfile.gettempdir(), "gaussvdb_numba_" + __name__.replace(".", "_"))
+    set_cache_dir(os.path.join(base, "render-" + kernel_tag()))
+    _cache_chosen = True
 
 
 def set_cache_dir(path):

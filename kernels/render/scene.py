@@ -48,8 +48,6 @@ class RenderScene:
     transmittance_min: float = 1e-3  # early termination; 0 disables
     step: float = 0.5                # field/reference sample spacing, in voxels along the ray
     tau_max: float = 0.1             # particles: max (optical depth x colour spread) per mixed segment
-    sweep_max: int = 8               # particles: above this many Gaussians in a leaf span, skip the
-                                     # event sweep and subdivide the span by tau x spread instead
     support_k: float = 3.0           # Gaussian support radius in sigmas (truncation)
     paper_steps: int = 8             # paper mode: fixed samples per Gaussian
     paper_max_depth: int = 10        # paper mode: closest-hit continuations

@@ -20,6 +20,7 @@ def gaussian_set(centers, sigmas, values=None, amplitudes=None, *, grid_class="f
     key = [tuple(x) for x in leaf]
     order = sorted(range(n), key=lambda i: (key[i], i))
     origins, start = [], [0]
+    cnt = 0
     for i in order:
         if not origins or tuple(origins[-1]) != key[i]:
             if origins:

@@ -1,0 +1,401 @@
+"""Particles and field modes: each ray tests every Gaussian once and sweeps its chords in
+(t, id) order, streaming behind the leaf walk so early termination still saves the work.
+
+Why this is exact and complete: the walk visits leaf cells front to back and each cell lists the
+Gaussians whose support box meets it. A Gaussian met in a cell was already tested if its box also
+covers the previous cell visited for its object (the cells of a box along a line are consecutive),
+so it is skipped there. A chord enters at a point inside its box, hence inside a listed cell the ray
+visits at or before that time: once the cells entered before t are visited, every chord entering
+before t is known, and the events before t can be swept.
+
+Particles: chords cut the ray into intervals; an interval closes where the active set empties (so
+non-overlapping supports are exact) or when an upper bound of its optical depth x colour spread
+(sum of the members' peak densities x length x spread) would pass tau_max. A closed interval gets
+each member's closed-form optical depth; its colour is their tau-weighted mean, subdivided until
+tau x spread <= tau_max (one colour or one member: exact).
+Field: midpoint samples on a uniform grid along the ray; each active Gaussian's value is carried
+from sample to sample by two multiplications (exp(-a(t+h)^2) = exp(-a t^2) r, r *= exp(-2 a h^2)).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ._cpu_math import BG_DEPTH, INF, _jit, composite, erf_span, sample_color
+
+# hit record columns (float64)
+S, E, TS, SA, C, HQ, HA, PK, V, R, RC = range(11)
+NF = 11
+OVERFLOW = -1
+
+
+@njit(**_jit, inline="always")
+def _before(ta, ka, tb, kb):
+    return ta < tb or (ta == tb and ka < kb)
+
+
+@njit(**_jit, inline="always")
+def queue_insert(qt, qk, qh, head, tail, t, key, h):
+    """Insert into the sorted event queue qt/qk/qh[head:tail] ordered by (t, key); key = 2 id +
+    (1 entry, 0 exit) is unique per ray, so the order is total and does not depend on discovery
+    order. Events arrive nearly sorted (cells come front to back): a short shift from the tail,
+    and popping is head += 1. Returns the new tail."""
+    j = tail
+    while j > head and _before(t, key, qt[j - 1], qk[j - 1]):
+        qt[j] = qt[j - 1]
+        qk[j] = qk[j - 1]
+        qh[j] = qh[j - 1]
+        j -= 1
+    qt[j] = t
+    qk[j] = key
+    qh[j] = h
+    return tail + 1
+
+
+@njit(**_jit, inline="always")
+def entry_face(dx, dy, dz):
+    """Face through which the walk entered a cell from the one at offset -(dx, dy, dz): 2a moving
+    +a, 2a + 1 moving -a; -1 when that cell is not a face neighbour (first cell, gaps, edges)."""
+    if dy == 0 and dz == 0:
+        return 0 if dx == 1 else (1 if dx == -1 else -1)
+    if dx == 0 and dz == 0:
+        return 2 if dy == 1 else (3 if dy == -1 else -1)
+    if dx == 0 and dy == 0:
+        return 4 if dz == 1 else (5 if dz == -1 else -1)
+    return -1
+
+
+@njit(**_jit, inline="always")
+def chord_tau(H, h, a, b):
+    """Closed-form optical depth of hit h over [a, b] clipped to its chord."""
+    if a < H[h, S]:
+        a = H[h, S]
+    if b > H[h, E]:
+        b = H[h, E]
+    if not b > a:
+        return 0.0
+    sa = H[h, SA]
+    ts = H[h, TS]
+    return H[h, C] * erf_span(sa * (a - ts), sa * (b - ts), sa * (b - a))
+
+
+@njit(**_jit)
+def median_depth(st, H, mem, nm, a, b, tsum):
+    """Depth pass for a one-Gaussian interval: where T crosses 0.5, by bisection on the closed form."""
+    T = st[0]
+    if st[4] != BG_DEPTH or T * math.exp(-tsum) > 0.5:
+        return
+    target = math.log(T / 0.5) if T > 0.5 else 0.0
+    lo = a
+    hi = b
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        acc = 0.0
+        for k in range(nm):
+            acc += chord_tau(H, mem[k], a, mid)
+        if acc < target:
+            lo = mid
+        else:
+            hi = mid
+    st[4] = 0.5 * (lo + hi)
+
+
+@njit(**_jit)
+def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp):
+    """Composite the members' optical depth over [a, b] (see module doc)."""
+    if not b > a or nm == 0:
+        return
+    tsum = 0.0
+    for k in range(nm):
+        tk = chord_tau(H, mem[k], a, b)
+        tmp[k] = tk
+        tsum += tk
+    st[7] += nm
+    if tsum <= 0.0:
+        return
+    nsub = 1
+    if nm > 1 and tau_max > 0.0 and tsum * spread > tau_max:
+        nsub = min(int(math.ceil(tsum * spread / tau_max)), 1024)
+    elif nm == 1:
+        median_depth(st, H, mem, 1, a, b, tsum)
+    for s in range(nsub):
+        if nsub > 1:
+            a0 = a + (b - a) * s / nsub
+            a1 = a + (b - a) * (s + 1) / nsub if s + 1 < nsub else b
+            tsum = 0.0
+            for k in range(nm):
+                tmp[k] = chord_tau(H, mem[k], a0, a1)
+                tsum += tmp[k]
+            st[7] += nm
+        else:
+            a0, a1 = a, b
+        if tsum <= 0.0:
+            continue
+        r = 0.0
+        gg = 0.0
+        bb = 0.0
+        vs = 0.0
+        vw = 0.0
+        for k in range(nm):
+            w = tmp[k]
+            if w == 0.0:
+                continue
+            g = hid[mem[k]]
+            r += w * g_col[g, 0]
+            gg += w * g_col[g, 1]
+            bb += w * g_col[g, 2]
+            if g_val[g] == g_val[g]:
+                vs += w * g_val[g]
+                vw += w
+        composite(st, tsum, r / tsum, gg / tsum, bb / tsum, vs / vw if vw > 0 else np.nan, a0, a1)
+        if st[0] < st[9]:
+            return
+
+
+@njit(**_jit)
+def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
+                face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
+                k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H, hid,
+                ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp):
+    """One ray, modes 0 (particles) and 1 (field), over the n visited cells in srt order.
+    Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
+    cap = H.shape[0]
+    nh = 0      # hits
+    e0 = 0      # pending events: ev_*[e0:e1], sorted
+    e1 = 0
+    nact = 0    # active hits (act[], pos[h] = slot)
+    # particles: the open interval [a, ...), its members, bound terms
+    nm = 0
+    a = 0.0
+    last_t = 0.0
+    rho = 0.0
+    c0lo = c1lo = c2lo = INF
+    c0hi = c1hi = c2hi = -INF
+    # field: uniform midpoint samples t_i = tf0 + (i + 1/2) h
+    n_obj = ro.shape[0]
+    hstep = INF
+    tf0 = 0.0
+    isamp = 0
+    if mode == 1:
+        tf0 = iv_ta[srt[0]]
+        for q in range(n):
+            ob = iv_obj[srt[q]]
+            dn = math.sqrt(rd[ob, 0] ** 2 + rd[ob, 1] ** 2 + rd[ob, 2] ** 2)
+            hstep = min(hstep, obj_step[ob] / dn)
+    for ob in range(n_obj):
+        lastc[ob, 0] = -(1 << 62)
+    for q in range(n + 1):
+        # --- 1. test the Gaussians first met in cell q
+        if q < n:
+            iv = srt[q]
+            ob = iv_obj[iv]
+            cid = iv_cell[iv]
+            ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
+            dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
+            ox32 = np.float32(ox - obj_ref[ob, 0])
+            oy32 = np.float32(oy - obj_ref[ob, 1])
+            oz32 = np.float32(oz - obj_ref[ob, 2])
+            dx32, dy32, dz32 = np.float32(dx), np.float32(dy), np.float32(dz)
+            dd32 = dx32 * dx32 + dy32 * dy32 + dz32 * dz32
+            near = ox32 * ox32 + oy32 * oy32 + oz32 * oz32 < 1e8  # float32 good to ~1e-3 voxel
+            cx, cy, cz = cell_xyz[cid, 0], cell_xyz[cid, 1], cell_xyz[cid, 2]
+            lx, ly, lz = lastc[ob, 0], lastc[ob, 1], lastc[ob, 2]
+            f = entry_face(cx - lx, cy - ly, cz - lz)
+            if f >= 0:  # came from the face neighbour: only the Gaussians that start here
+                lst = face_items
+                j0 = face_start[6 * cid + f]
+                j1 = face_start[6 * cid + f + 1]
+            else:
+                lst = cell_items
+                j0 = cell_start[cid]
+                j1 = cell_start[cid + 1]
+            for j in range(j0, j1):
+                g = lst[j]
+                if g_rec[g, 6] == 0.0:
+                    continue
+                if f < 0 and (g_clo[g, 0] <= lx and lx <= g_chi[g, 0] and g_clo[g, 1] <= ly
+                              and ly <= g_chi[g, 1] and g_clo[g, 2] <= lz and lz <= g_chi[g, 2]):
+                    continue  # its box covers the previous cell: tested there
+                # cheap rejection on a 16-byte bounding sphere (float32 near the object's
+                # reference point, radius widened for the rounding); survivors: the exact test
+                if near:
+                    cxp = (g_sph[g, 1] - oy32) * dz32 - (g_sph[g, 2] - oz32) * dy32
+                    cyp = (g_sph[g, 2] - oz32) * dx32 - (g_sph[g, 0] - ox32) * dz32
+                    czp = (g_sph[g, 0] - ox32) * dy32 - (g_sph[g, 1] - oy32) * dx32
+                    if cxp * cxp + cyp * cyp + czp * czp > g_sph[g, 3] * dd32:
+                        continue
+                ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
+                wx, wy, wz = (ox - g_rec[g, 0]) * ix, (oy - g_rec[g, 1]) * iy, (oz - g_rec[g, 2]) * iz
+                vx, vy, vz = dx * ix, dy * iy, dz * iz
+                aa = vx * vx + vy * vy + vz * vz
+                bb = wx * vx + wy * vy + wz * vz
+                ts = -bb / aa
+                px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
+                qq = px * px + py * py + pz * pz
+                if qq >= k2:
+                    continue
+                hw = math.sqrt((k2 - qq) / aa)
+                s = ts - hw
+                e = ts + hw
+                if s < 0.0:
+                    s = 0.0
+                if not e > s:
+                    continue
+                if nh >= cap:
+                    return OVERFLOW
+                H[nh, S] = s
+                H[nh, E] = e
+                H[nh, TS] = ts
+                H[nh, SA] = math.sqrt(0.5 * aa)
+                H[nh, HQ] = 0.5 * qq
+                H[nh, HA] = 0.5 * aa
+                H[nh, PK] = g_rec[g, 6] * math.exp(-0.5 * qq)
+                H[nh, C] = H[nh, PK] * math.sqrt(math.pi / (2.0 * aa))
+                hid[nh] = g
+                e1 = queue_insert(ev_t, ev_k, ev_h, e0, e1, s, 2 * np.int64(g) + 1, nh)
+                e1 = queue_insert(ev_t, ev_k, ev_h, e0, e1, e, 2 * np.int64(g), nh)
+                nh += 1
+            lastc[ob, 0] = cx
+            lastc[ob, 1] = cy
+            lastc[ob, 2] = cz
+        horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
+        # --- 2. sweep what is complete before the horizon
+        if mode == 0:
+            while e0 < e1 and ev_t[e0] < horizon:
+                t = ev_t[e0]
+                key = ev_k[e0]
+                h = ev_h[e0]
+                e0 += 1
+                if nm > 0:
+                    if t < last_t:
+                        t = last_t  # a chord found late by rounding: starts where the sweep is
+                    if t > last_t and last_t > a:
+                        spread = max(c0hi - c0lo, c1hi - c1lo, c2hi - c2lo)
+                        if rho * (t - a) * spread > tau_max:
+                            close_interval(st, H, hid, mem, nm, a, last_t, spread, g_col, g_val,
+                                           tau_max, tmp)
+                            if st[0] < st[9]:
+                                return 0
+                            a = last_t
+                            nm = 0
+                            rho = 0.0
+                            c0lo = c1lo = c2lo = INF
+                            c0hi = c1hi = c2hi = -INF
+                            for k in range(nact):
+                                hk = act[k]
+                                mem[nm] = hk
+                                nm += 1
+                                rho += H[hk, PK]
+                                gk = hid[hk]
+                                c0lo = min(c0lo, g_col[gk, 0])
+                                c0hi = max(c0hi, g_col[gk, 0])
+                                c1lo = min(c1lo, g_col[gk, 1])
+                                c1hi = max(c1hi, g_col[gk, 1])
+                                c2lo = min(c2lo, g_col[gk, 2])
+                                c2hi = max(c2hi, g_col[gk, 2])
+                if key & 1:  # entry
+                    pos[h] = nact
+                    act[nact] = h
+                    nact += 1
+                    if nm == 0:
+                        a = t
+                    mem[nm] = h
+                    nm += 1
+                    rho += H[h, PK]
+                    gk = hid[h]
+                    c0lo = min(c0lo, g_col[gk, 0])
+                    c0hi = max(c0hi, g_col[gk, 0])
+                    c1lo = min(c1lo, g_col[gk, 1])
+                    c1hi = max(c1hi, g_col[gk, 1])
+                    c2lo = min(c2lo, g_col[gk, 2])
+                    c2hi = max(c2hi, g_col[gk, 2])
+                else:  # exit
+                    k = pos[h]
+                    lst = act[nact - 1]
+                    act[k] = lst
+                    pos[lst] = k
+                    nact -= 1
+                    if nact == 0:
+                        spread = max(c0hi - c0lo, c1hi - c1lo, c2hi - c2lo)
+                        close_interval(st, H, hid, mem, nm, a, t, spread, g_col, g_val, tau_max, tmp)
+                        if st[0] < st[9]:
+                            return 0
+                        nm = 0
+                        rho = 0.0
+                        c0lo = c1lo = c2lo = INF
+                        c0hi = c1hi = c2hi = -INF
+                last_t = t
+        else:
+            while True:
+                ti = tf0 + (isamp + 0.5) * hstep
+                if not ti < horizon:
+                    break
+                while e0 < e1 and ev_t[e0] <= ti:
+                    key = ev_k[e0]
+                    h = ev_h[e0]
+                    e0 += 1
+                    if key & 1:
+                        pos[h] = nact
+                        act[nact] = h
+                        nact += 1
+                        d = ti - H[h, TS]
+                        ha = H[h, HA]
+                        H[h, V] = g_rec[hid[h], 6] * math.exp(-(H[h, HQ] + ha * d * d))
+                        H[h, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
+                        H[h, RC] = math.exp(-2.0 * ha * hstep * hstep)
+                    else:
+                        k = pos[h]
+                        lst = act[nact - 1]
+                        act[k] = lst
+                        pos[lst] = k
+                        nact -= 1
+                if nact == 0:
+                    if e0 == e1 or not ev_t[e0] < horizon:
+                        # nothing known ahead: resume at the first sample not before the horizon
+                        if horizon < INF:
+                            isamp = max(isamp, int(math.ceil((horizon - tf0) / hstep - 0.5)))
+                        break
+                    isamp = max(isamp + 1, int(math.ceil((ev_t[e0] - tf0) / hstep - 0.5)))
+                    continue
+                for ob in range(n_obj):
+                    svals[ob] = 0.0
+                    sact[ob] = 0
+                for k in range(nact):
+                    h = act[k]
+                    ob = g_obj[hid[h]]
+                    svals[ob] += H[h, V]
+                    sact[ob] = 1
+                    H[h, V] *= H[h, R]
+                    H[h, R] *= H[h, RC]
+                st[7] += nact
+                sig = 0.0
+                r = 0.0
+                gg = 0.0
+                bb = 0.0
+                vs = 0.0
+                vw = 0.0
+                for ob in range(n_obj):
+                    if sact[ob] == 0:
+                        continue
+                    x = ro[ob, 0] + ti * rd[ob, 0]
+                    y = ro[ob, 1] + ti * rd[ob, 1]
+                    z = ro[ob, 2] + ti * rd[ob, 2]
+                    sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
+                    sg = samp[0]
+                    if sg > 0.0:
+                        sig += sg
+                        r += sg * samp[1]
+                        gg += sg * samp[2]
+                        bb += sg * samp[3]
+                        if samp[4] == samp[4]:
+                            vs += sg * samp[4]
+                            vw += sg
+                isamp += 1
+                if sig > 0.0:
+                    composite(st, sig * hstep, r / sig, gg / sig, bb / sig,
+                              vs / vw if vw > 0 else np.nan, ti - 0.5 * hstep, ti + 0.5 * hstep)
+                    if st[0] < st[9]:
+                        return 0
+    return 0

@@ -1,0 +1,129 @@
+"""Front-to-back walk of an object's leaf hierarchy (nodes of 128^3, leaves of 8^3) with integer
+cell indices."""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from ._cpu_math import INF, LEAF, NL, NODE, _jit
+
+
+@njit(**_jit)
+def slab(ox, oy, oz, dx, dy, dz, lx, ly, lz, hx, hy, hz, t0, t1):
+    """NaN-free slab test: zero direction components are handled explicitly."""
+    o = (ox, oy, oz)
+    d = (dx, dy, dz)
+    lo = (lx, ly, lz)
+    hi = (hx, hy, hz)
+    for k in range(3):
+        if d[k] == 0.0:
+            if o[k] < lo[k] or o[k] > hi[k]:
+                return 1.0, 0.0
+        else:
+            inv = 1.0 / d[k]
+            ta = (lo[k] - o[k]) * inv
+            tb = (hi[k] - o[k]) * inv
+            if ta > tb:
+                ta, tb = tb, ta
+            if ta > t0:
+                t0 = ta
+            if tb < t1:
+                t1 = tb
+    return t0, t1
+
+
+@njit(**_jit)
+def dda_axis(o, d, t, size, lo, hi):
+    """Integer cell, step, t of the next boundary, t per cell along one axis."""
+    c = int(math.floor((o + t * d) / size))
+    if c < lo:
+        c = lo
+    if c > hi - 1:
+        c = hi - 1
+    if d > 0.0:
+        return c, 1, ((c + 1) * size - o) / d, size / d
+    if d < 0.0:
+        return c, -1, (c * size - o) / d, -size / d
+    return c, 0, INF, INF
+
+
+@njit(**_jit)
+def walk_object(ox, oy, oz, dx, dy, dz, nmin, ndims, noff, node_table, node_cells, cell_skip,
+                obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap):
+    """Hierarchical DDA (nodes of 128^3, then leaves of 8^3, integer cell indices) in q-space
+    (q = index + 0.5); appends the non-empty, non-transparent leaf intervals front to back."""
+    if ndims[0] == 0:
+        return n
+    qx, qy, qz = ox + 0.5, oy + 0.5, oz + 0.5
+    t0, t1 = slab(qx, qy, qz, dx, dy, dz, nmin[0] * NODE, nmin[1] * NODE, nmin[2] * NODE,
+                  (nmin[0] + ndims[0]) * NODE, (nmin[1] + ndims[1]) * NODE,
+                  (nmin[2] + ndims[2]) * NODE, 0.0, INF)
+    if not t0 < t1:
+        return n
+    t = t0
+    cx, sx, mx, ex = dda_axis(qx, dx, t, NODE, nmin[0], nmin[0] + ndims[0])
+    cy, sy, my, ey = dda_axis(qy, dy, t, NODE, nmin[1], nmin[1] + ndims[1])
+    cz, sz, mz, ez = dda_axis(qz, dz, t, NODE, nmin[2], nmin[2] + ndims[2])
+    while True:
+        tn = min(mx, my, mz, t1)
+        if tn > t:
+            nid = node_table[noff + ((cx - nmin[0]) * ndims[1] + (cy - nmin[1])) * ndims[2] + (cz - nmin[2])]
+            if nid >= 0:
+                # leaf-level DDA inside this node over [t, tn]
+                bx, by, bz = cx * NL, cy * NL, cz * NL
+                lx, lsx, lmx, lex = dda_axis(qx, dx, t, LEAF, bx, bx + NL)
+                ly, lsy, lmy, ley = dda_axis(qy, dy, t, LEAF, by, by + NL)
+                lz, lsz, lmz, lez = dda_axis(qz, dz, t, LEAF, bz, bz + NL)
+                u = t
+                while True:
+                    un = min(lmx, lmy, lmz, tn)
+                    if un > u:
+                        cid = node_cells[nid, ((lx - bx) * NL + (ly - by)) * NL + (lz - bz)]
+                        if cid >= 0 and cell_skip[cid] == 0 and n < cap:
+                            iv_ta[n] = u
+                            iv_tb[n] = un
+                            iv_obj[n] = obj
+                            iv_cell[n] = cid
+                            n += 1
+                    if un >= tn:
+                        break
+                    if lmx <= lmy and lmx <= lmz:
+                        lx += lsx
+                        lmx += lex
+                        if lx < bx or lx >= bx + NL:
+                            break
+                    elif lmy <= lmz:
+                        ly += lsy
+                        lmy += ley
+                        if ly < by or ly >= by + NL:
+                            break
+                    else:
+                        lz += lsz
+                        lmz += lez
+                        if lz < bz or lz >= bz + NL:
+                            break
+                    if un > u:
+                        u = un
+        if tn >= t1:
+            break
+        if mx <= my and mx <= mz:
+            cx += sx
+            mx += ex
+            if cx < nmin[0] or cx >= nmin[0] + ndims[0]:
+                break
+        elif my <= mz:
+            cy += sy
+            my += ey
+            if cy < nmin[1] or cy >= nmin[1] + ndims[1]:
+                break
+        else:
+            cz += sz
+            mz += ez
+            if cz < nmin[2] or cz >= nmin[2] + ndims[2]:
+                break
+        if tn > t:
+            t = tn
+    return n
+
+
