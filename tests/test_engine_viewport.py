@@ -163,7 +163,7 @@ def test_progressive_schedule(addon):
 def test_viewport_worker_refines(bpy_module, scene):
     """The worker's step() renders 1/8 .. full resolution of the submitted view, headless."""
     bpy = bpy_module
-    fr, vp, ss = _mod("final_render"), _mod("viewport"), _mod("scene_sync")
+    fr, vp = _mod("final_render"), _mod("viewport")
     make_object(bpy, "Cloud", lattice(8, 8, 8), values=np.linspace(0, 1, 512))
     add_camera(bpy, scene, (3.5, -30.0, 3.5), (math.pi / 2, 0.0, 0.0))
     scene.gaussvdb.threads = 1
@@ -184,7 +184,7 @@ def test_viewport_worker_refines(bpy_module, scene):
         sess.schedule.restart()
         sess.job = (sess.schedule.generation, sess.sync.scene, cam, sess.sync.transfer_function(scene.gaussvdb))
     sizes = []
-    while (f := sess.step()) is not None:
+    while sess.step() is not None:
         sizes.append(sess.image[2].shape[:2])
     assert sizes == [(6, 8), (12, 16), (24, 32), (48, 64)]
     assert sess.schedule.converged and sess.engine.redraws == 4
