@@ -96,7 +96,8 @@ def main(argv=None):
             vmin, vmax = float(np.nanmin(vals)), float(np.nanmax(vals))
         tf = TransferFunction.from_colormap("viridis", vmin, vmax if vmax > vmin else vmin + 1, density=dens)
         cam = Camera.frame_box(lo, hi, a.size, a.size, direction=(1.0, 1.0, -0.6))
-        print(f"{name}: {g.grid_class}, {int(np.asarray(gs.group_start)[-1])} Gaussians ({a.lod}, built in {tl:.2f} s), "
+        print(f"{name}: {g.grid_class}, {int(np.asarray(gs.group_start)[-1])} Gaussians "
+              f"({a.lod}, built in {tl:.2f} s), "
               f"{len(g.leaf_origins)} leaves, {a.size}x{a.size}")
         for mode in a.modes.split(","):
             sc = RenderScene([RenderObject(gs, m, grid=g, is_level_set=is_ls)], mode=mode)
@@ -120,7 +121,8 @@ def main(argv=None):
             if len(threads) > 1:
                 row["speedup"] = t1 / res[threads[-1]][0]
             rows.append(row)
-            print(f"  {mode:10s} sync {sync_s*1e3:7.0f} ms | " + " | ".join(f"{th} thr {1e3*res[th][0]:8.1f} ms" for th in threads)
+            print(f"  {mode:10s} sync {sync_s*1e3:7.0f} ms | "
+                  + " | ".join(f"{th} thr {1e3*res[th][0]:8.1f} ms" for th in threads)
                   + f" | {row['msegs_per_s_per_core']:6.2f} M seg/s/core | speedup {row.get('speedup', 1):.2f} "
                   f"| coverage {row['coverage']:.2f}")
     if a.json:

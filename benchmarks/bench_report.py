@@ -47,9 +47,9 @@ for _p in (ROOT, HERE):
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
-from bench_lod import warm_up
-from bench_render import world_box
-from metrics import image_errors, time_to_reach, to_display
+from bench_lod import warm_up  # noqa: E402  (after the sys.path set-up above)
+from bench_render import world_box  # noqa: E402
+from metrics import image_errors, time_to_reach, to_display  # noqa: E402
 
 VIEW = (0.35, 1.0, -0.3)
 COLORMAP = "viridis"
@@ -303,7 +303,8 @@ def run(a):
                 nb = encoded_nbytes(encode_compact(gs))
                 e = field_error(g, gs)
                 conv = {"lod": lod, "gaussians": int(gs.count), "bytes": int(nb),
-                            "bytes_per_gaussian": nb / max(gs.count, 1), "paper_model_bytes": int(paper_model_bytes(gs)),
+                            "bytes_per_gaussian": nb / max(gs.count, 1),
+                            "paper_model_bytes": int(paper_model_bytes(gs)),
                             "seconds_convert": t_conv, "field_rmse": e["rmse"], "field_nrmse": e["nrmse"],
                             "field_max_abs": e["max_abs"], "surface_iou": e.get("surface_iou")}
                 prog.step(f"{ds}/{name} {lod}: convert")
@@ -439,7 +440,8 @@ def contact_sheet(ds, sheets, path):
             if lod not in lods:
                 lods.append(lod)
         for lod in lods:
-            panels.append([(im, f"{s['grid']} {lod} {mode}, {_f(p)} dB") for l2, mode, im, p in s["cells"] if l2 == lod])
+            panels.append([(im, f"{s['grid']} {lod} {mode}, {_f(p)} dB")
+                           for l2, mode, im, p in s["cells"] if l2 == lod])
     cols = max(len(r) for r in panels)
     fig, axes = plt.subplots(len(panels), cols, figsize=(2.3 * cols, 2.45 * len(panels)), squeeze=False)
     for i, row in enumerate(panels):

@@ -23,7 +23,8 @@ def make_object(bpy, name, centres, values=None, *, sigma=SIGMA, grid_class="fog
     mesh.vertices.foreach_set("co", centres.astype(np.float32).ravel())
     amp = 1.0 / ((2 * math.pi) ** 1.5 * sigma ** 3)
     attrs = {"gs_sigma": ("FLOAT_VECTOR", np.full((m, 3), sigma, np.float32), "vector"),
-             "gs_value": ("FLOAT", np.ones(m, np.float32) if values is None else np.asarray(values, np.float32), "value"),
+             "gs_value": ("FLOAT", np.ones(m, np.float32) if values is None
+                          else np.asarray(values, np.float32), "value"),
              "gs_amplitude": ("FLOAT", np.full(m, amp, np.float32), "value"),
              "gs_voxels": ("INT", np.ones(m, np.int32), "value")}
     if lod_index is not None:

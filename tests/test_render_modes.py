@@ -135,11 +135,14 @@ def test_two_overlapping_objects_composite_by_depth(dev, mode):
     np.testing.assert_allclose(sw, img_top, atol=1e-6)
     # one merged object with both sets of Gaussians (same world placement) gives the same image
     if mode == "particles":
-        cs_b = b.gaussians.offsets.astype(float) + np.repeat(b.gaussians.group_origins, np.diff(b.gaussians.group_start), 0)
-        cs_a = a.gaussians.offsets.astype(float) + np.repeat(a.gaussians.group_origins, np.diff(a.gaussians.group_start), 0)
+        def centres(gs):
+            return gs.offsets.astype(float) + np.repeat(gs.group_origins, np.diff(gs.group_start), 0)
+
+        cs_a, cs_b = centres(a.gaussians), centres(b.gaussians)
         wb = cs_b * 0.7 + [0, 0, -3.0]
         # express b's Gaussians in a's index space: sigma 0.7, colour via value
-        merged = gaussian_set(np.concatenate([cs_a, wb]), np.concatenate([np.ones((len(cs_a), 3)), np.full((len(wb), 3), 0.7)]),
+        sig = np.concatenate([np.ones((len(cs_a), 3)), np.full((len(wb), 3), 0.7)])
+        merged = gaussian_set(np.concatenate([cs_a, wb]), sig,
                               np.concatenate([np.zeros(len(cs_a)), np.ones(len(wb))]), 1.0)
         tfm = TransferFunction.from_ramp([0, 1], [[1, 0, 0, 1], [0, 0, 1, 1]], 0, 1, density=1.0,
                                          interpolation="CONSTANT")

@@ -24,7 +24,9 @@ def _k():
 def mp_line(o, d, t0, t1):
     o = [mpmath.mpf(x) for x in o]
     d = [mpmath.mpf(x) for x in d]
-    f = lambda t: mpmath.exp(-sum((o[k] + t * d[k]) ** 2 for k in range(3)) / 2)
+    def f(t):
+        return mpmath.exp(-sum((o[k] + t * d[k]) ** 2 for k in range(3)) / 2)
+
     a = sum(x * x for x in d)
     ts = -sum(o[k] * d[k] for k in range(3)) / a
     pts = sorted({mpmath.mpf(t0), mpmath.mpf(t1), min(max(ts, t0), t1)})

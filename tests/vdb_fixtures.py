@@ -120,9 +120,15 @@ class _Enc:
         code, v0, v1, sel = 6, None, None, None
         if self.flags & codec.COMPRESS_ACTIVE_MASK:
             d = np.unique(uv[~active], axis=0)  # distinct inactive values, bitwise
-            same = lambda row: np.all(uv == row, axis=1) & ~active
-            isb = lambda row: np.array_equal(row, ub)
-            isnb = lambda row: np.array_equal(row, unb)
+            def same(row):
+                return np.all(uv == row, axis=1) & ~active
+
+            def isb(row):
+                return np.array_equal(row, ub)
+
+            def isnb(row):
+                return np.array_equal(row, unb)
+
             if len(d) == 0 or (len(d) == 1 and isb(d[0])):
                 code = 0
             elif len(d) == 1 and isnb(d[0]):

@@ -382,5 +382,6 @@ def decode_compact(enc: dict) -> GaussianSet:
         group_origins=origins.reshape(-1, 3), group_start=gstart, offsets=offsets.astype(np.float32),
         sigmas=sig.astype(np.float32), values=vals.astype(np.float32), amplitudes=amp.astype(np.float32),
         voxels=vox.astype(np.int32), grid_class=_CLASSES[meta["class"]],
-        lod=lod, weights=weights, index_to_world=i2w, background=background, n_leaf_groups=nl, size_codes=codes.astype(np.int32),
+        lod=lod, weights=weights, index_to_world=i2w, background=background, n_leaf_groups=nl,
+        size_codes=codes.astype(np.int32),
         sigma_scale=scale, params={})

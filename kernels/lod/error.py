@@ -104,10 +104,10 @@ def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
     for p in range(cstart[c], cstart[c + 1]):
         g = pg[p]
         for a in range(3):
-            for l in range(8):
-                d = (corg[c, a] + l - cent[g, a]) / sig[g, a]
-                q[a, l] = d * d
-                e[a, l] = np.exp(-0.5 * d * d)
+            for li in range(8):
+                d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
+                q[a, li] = d * d
+                e[a, li] = np.exp(-0.5 * d * d)
         wg = w[g]
         for x in range(8):
             if q[0, x] > k2:

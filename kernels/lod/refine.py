@@ -59,10 +59,10 @@ def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum,
         for p in range(cstart[c], cstart[c + 1]):
             g = pg[p]
             for a in range(3):
-                for l in range(8):
-                    d = (corg[c, a] + l - cent[g, a]) / sig[g, a]
-                    q[a, l] = d * d
-                    e[a, l] = np.exp(-0.5 * power * d * d)
+                for li in range(8):
+                    d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
+                    q[a, li] = d * d
+                    e[a, li] = np.exp(-0.5 * power * d * d)
             num = 0.0
             den = 0.0
             for x in range(8):
