@@ -12,7 +12,19 @@ import numpy as np
 from numba import njit, prange
 
 from ._cpu_gauss import NF, OVERFLOW, trace_gauss
-from ._cpu_math import BG_DEPTH, INF, _jit, composite, erf_diff, erf_span, line_integral, sample_color, whitened_chord
+from ._cpu_math import (
+    BG_DEPTH,
+    INF,
+    _jit,
+    add_sample,
+    composite,
+    composite_sample,
+    erf_diff,
+    erf_span,
+    line_integral,
+    sample_color,
+    whitened_chord,
+)
 from ._cpu_walk import walk_object
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
@@ -21,7 +33,7 @@ __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
 
 @njit(**_jit)
 def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp):
+                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc):
     """reference: trilinear voxel samples at midpoints, exact exponential compositing. Each
     object's medium exists only inside its leaves; objects overlapping in a piece add extinction,
     colours tau-weighted."""
@@ -38,12 +50,7 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
     h = (p1 - p0) / n
     for i in range(n):
         t = p0 + (i + 0.5) * h
-        sig = 0.0
-        r = 0.0
-        g = 0.0
-        b = 0.0
-        vs = 0.0
-        vw = 0.0
+        acc[:] = 0.0
         for c in range(ncov):
             ob = cov_obj[c]
             x = ro[ob, 0] + t * rd[ob, 0]
@@ -68,18 +75,9 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
                 val = 0.5 - val / obj_ls[ob, 7]
             st[7] += 1
             sample_color(ob, val, x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
-            sg = samp[0]
-            if sg > 0.0:
-                sig += sg
-                r += sg * samp[1]
-                g += sg * samp[2]
-                b += sg * samp[3]
-                if samp[4] == samp[4]:
-                    vs += sg * samp[4]
-                    vw += sg
-        if sig > 0.0:
-            composite(st, sig * h, r / sig, g / sig, b / sig, vs / vw if vw > 0 else np.nan,
-                      t - 0.5 * h, t + 0.5 * h)
+            add_sample(acc, samp)
+        if acc[0] > 0.0:
+            composite_sample(st, acc, t, h)
             if st[0] < st[9]:
                 return
 
@@ -160,7 +158,7 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
 def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj,
                  cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
                  g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls,
-                 tf_lut, tf_par, samp):
+                 tf_lut, tf_par, samp, acc):
     """paper (mode 2) / reference (mode 3): piece by piece over the covering leaves."""
     npieces = n if n_obj == 1 else merged_pieces(n, iv_ta, iv_tb, srt, bnd)
     ptr = 0
@@ -204,9 +202,18 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
                 return
         else:
             reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                            obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
+                            obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc)
         if st[0] < st[9]:
             return
+
+
+@njit(**_jit)
+def ray_scratch(cap):
+    """Per-ray hit arrays for trace_gauss, room for cap hits: records, ids, the event queue
+    (2 per hit), the active set, slots, interval members, per-member depths."""
+    return (np.empty((cap, NF)), np.empty(cap, np.int64), np.empty(2 * cap),
+            np.empty(2 * cap, np.int64), np.empty(2 * cap, np.int64), np.empty(cap, np.int64),
+            np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap))
 
 
 @njit(**_jit)
@@ -242,18 +249,12 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
     svals = np.empty(n_obj)
     sact = np.empty(n_obj, np.int64)
     samp = np.empty(5)
+    acc = np.empty(6)  # one sample's sums (add_sample)
+    cb = np.empty(6)  # particles: colour bounds of an interval's members
     st = np.empty(12)
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
-    Hs = np.empty((cap, NF))
-    hid = np.empty(cap, np.int64)
-    ev_t = np.empty(2 * cap)
-    ev_k = np.empty(2 * cap, np.int64)
-    ev_h = np.empty(2 * cap, np.int64)
-    act = np.empty(cap, np.int64)
-    pos = np.empty(cap, np.int64)
-    mem = np.empty(cap, np.int64)
-    tmp = np.empty(cap)
+    Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp = ray_scratch(cap)
     segs = 0.0
     py = ((j + 0.5) / Hh - 0.5) * ey + offy
     for i in range(W):
@@ -303,7 +304,7 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                              act_iv, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu,
                              g_inv, g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, maxd,
                              obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls, tf_lut,
-                             tf_par, samp)
+                             tf_par, samp, acc)
                 break
             if n_obj == 1:
                 for q in range(n):
@@ -314,19 +315,11 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                              cell_start, cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj,
                              g_clo, g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
                              tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, pos, mem,
-                             tmp, svals, sact, samp)
+                             tmp, svals, sact, samp, acc, cb)
             if rc != OVERFLOW:
                 break
             cap *= 2  # more Gaussians on this ray than ever before in this row: retry
-            Hs = np.empty((cap, NF))
-            hid = np.empty(cap, np.int64)
-            ev_t = np.empty(2 * cap)
-            ev_k = np.empty(2 * cap, np.int64)
-            ev_h = np.empty(2 * cap, np.int64)
-            act = np.empty(cap, np.int64)
-            pos = np.empty(cap, np.int64)
-            mem = np.empty(cap, np.int64)
-            tmp = np.empty(cap)
+            Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp = ray_scratch(cap)
         T = st[0]
         out_rgba[jr, i, 0] = st[1] + T * bgr * bga
         out_rgba[jr, i, 1] = st[2] + T * bgg * bga

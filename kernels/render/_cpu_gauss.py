@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ._cpu_math import BG_DEPTH, INF, _jit, composite, erf_span, sample_color
+from ._cpu_math import BG_DEPTH, INF, _jit, add_sample, composite, composite_sample, erf_span, sample_color
 
 # hit record columns (float64)
 S, E, TS, SA, C, HQ, HA, PK, V, R, RC = range(11)
@@ -65,6 +65,30 @@ def entry_face(dx, dy, dz):
     if dx == 0 and dy == 0:
         return 4 if dz == 1 else (5 if dz == -1 else -1)
     return -1
+
+
+@njit(**_jit, inline="always")
+def add_member(H, hid, g_col, mem, nm, cb, h):
+    """Make hit h member nm of the open interval; widen the colour bounds cb = (lo rgb, hi rgb).
+    Returns its peak density (the interval's bound term)."""
+    mem[nm] = h
+    g = hid[h]
+    for c in range(3):
+        cb[c] = min(cb[c], g_col[g, c])
+        cb[3 + c] = max(cb[3 + c], g_col[g, c])
+    return H[h, PK]
+
+
+@njit(**_jit, inline="always")
+def reset_bounds(cb):
+    for c in range(3):
+        cb[c] = INF
+        cb[3 + c] = -INF
+
+
+@njit(**_jit, inline="always")
+def spread_of(cb):
+    return max(cb[3] - cb[0], cb[4] - cb[1], cb[5] - cb[2])
 
 
 @njit(**_jit, inline="always")
@@ -158,7 +182,7 @@ def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H, hid,
-                ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp):
+                ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb):
     """One ray, modes 0 (particles) and 1 (field), over the n visited cells in srt order.
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
     cap = H.shape[0]
@@ -171,8 +195,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
     a = 0.0
     last_t = 0.0
     rho = 0.0
-    c0lo = c1lo = c2lo = INF
-    c0hi = c1hi = c2hi = -INF
+    reset_bounds(cb)  # cb: the members' colour bounds
     # field: uniform midpoint samples t_i = tf0 + (i + 1/2) h
     n_obj = ro.shape[0]
     hstep = INF
@@ -272,45 +295,26 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
                     if t < last_t:
                         t = last_t  # a chord found late by rounding: starts where the sweep is
                     if t > last_t and last_t > a:
-                        spread = max(c0hi - c0lo, c1hi - c1lo, c2hi - c2lo)
+                        spread = spread_of(cb)
                         if rho * (t - a) * spread > tau_max:
                             close_interval(st, H, hid, mem, nm, a, last_t, spread, g_col, g_val,
                                            tau_max, tmp)
                             if st[0] < st[9]:
                                 return 0
-                            a = last_t
-                            nm = 0
+                            a = last_t  # the active set carries over as the new members
                             rho = 0.0
-                            c0lo = c1lo = c2lo = INF
-                            c0hi = c1hi = c2hi = -INF
+                            reset_bounds(cb)
                             for k in range(nact):
-                                hk = act[k]
-                                mem[nm] = hk
-                                nm += 1
-                                rho += H[hk, PK]
-                                gk = hid[hk]
-                                c0lo = min(c0lo, g_col[gk, 0])
-                                c0hi = max(c0hi, g_col[gk, 0])
-                                c1lo = min(c1lo, g_col[gk, 1])
-                                c1hi = max(c1hi, g_col[gk, 1])
-                                c2lo = min(c2lo, g_col[gk, 2])
-                                c2hi = max(c2hi, g_col[gk, 2])
+                                rho += add_member(H, hid, g_col, mem, k, cb, act[k])
+                            nm = nact
                 if key & 1:  # entry
                     pos[h] = nact
                     act[nact] = h
                     nact += 1
                     if nm == 0:
                         a = t
-                    mem[nm] = h
+                    rho += add_member(H, hid, g_col, mem, nm, cb, h)
                     nm += 1
-                    rho += H[h, PK]
-                    gk = hid[h]
-                    c0lo = min(c0lo, g_col[gk, 0])
-                    c0hi = max(c0hi, g_col[gk, 0])
-                    c1lo = min(c1lo, g_col[gk, 1])
-                    c1hi = max(c1hi, g_col[gk, 1])
-                    c2lo = min(c2lo, g_col[gk, 2])
-                    c2hi = max(c2hi, g_col[gk, 2])
                 else:  # exit
                     k = pos[h]
                     lst = act[nact - 1]
@@ -318,14 +322,13 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
                     pos[lst] = k
                     nact -= 1
                     if nact == 0:
-                        spread = max(c0hi - c0lo, c1hi - c1lo, c2hi - c2lo)
-                        close_interval(st, H, hid, mem, nm, a, t, spread, g_col, g_val, tau_max, tmp)
+                        close_interval(st, H, hid, mem, nm, a, t, spread_of(cb), g_col, g_val,
+                                       tau_max, tmp)
                         if st[0] < st[9]:
                             return 0
                         nm = 0
                         rho = 0.0
-                        c0lo = c1lo = c2lo = INF
-                        c0hi = c1hi = c2hi = -INF
+                        reset_bounds(cb)
                 last_t = t
         else:
             while True:
@@ -370,12 +373,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
                     H[h, V] *= H[h, R]
                     H[h, R] *= H[h, RC]
                 st[7] += nact
-                sig = 0.0
-                r = 0.0
-                gg = 0.0
-                bb = 0.0
-                vs = 0.0
-                vw = 0.0
+                acc[:] = 0.0
                 for ob in range(n_obj):
                     if sact[ob] == 0:
                         continue
@@ -383,19 +381,10 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
                     y = ro[ob, 1] + ti * rd[ob, 1]
                     z = ro[ob, 2] + ti * rd[ob, 2]
                     sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
-                    sg = samp[0]
-                    if sg > 0.0:
-                        sig += sg
-                        r += sg * samp[1]
-                        gg += sg * samp[2]
-                        bb += sg * samp[3]
-                        if samp[4] == samp[4]:
-                            vs += sg * samp[4]
-                            vw += sg
+                    add_sample(acc, samp)
                 isamp += 1
-                if sig > 0.0:
-                    composite(st, sig * hstep, r / sig, gg / sig, bb / sig,
-                              vs / vw if vw > 0 else np.nan, ti - 0.5 * hstep, ti + 0.5 * hstep)
+                if acc[0] > 0.0:
+                    composite_sample(st, acc, ti, hstep)
                     if st[0] < st[9]:
                         return 0
     return 0

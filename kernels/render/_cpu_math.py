@@ -171,3 +171,24 @@ def sample_color(ob, s, x_idx, y_idx, z_idx, obj_kind, obj_tf, obj_ls, tf_lut, t
     out[4] = s
 
 
+@njit(**_jit, inline="always")
+def add_sample(acc, samp):
+    """Add one object's sample (sigma_t, rgb, value) to acc = (sigma, r, g, b, vsum, vweight)."""
+    sg = samp[0]
+    if sg > 0.0:
+        acc[0] += sg
+        acc[1] += sg * samp[1]
+        acc[2] += sg * samp[2]
+        acc[3] += sg * samp[3]
+        if samp[4] == samp[4]:
+            acc[4] += sg * samp[4]
+            acc[5] += sg
+
+
+@njit(**_jit, inline="always")
+def composite_sample(st, acc, t, h):
+    """Composite the accumulated sample at t over a step h (colours sigma-weighted)."""
+    sig = acc[0]
+    if sig > 0.0:
+        composite(st, sig * h, acc[1] / sig, acc[2] / sig, acc[3] / sig,
+                  acc[4] / acc[5] if acc[5] > 0 else np.nan, t - 0.5 * h, t + 0.5 * h)
