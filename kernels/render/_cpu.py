@@ -11,10 +11,11 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._cpu_gauss import NF, OVERFLOW, trace_gauss
+from ._cpu_gauss import NF, OVERFLOW, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
     INF,
+    _hot,
     _jit,
     add_sample,
     composite,
@@ -25,13 +26,14 @@ from ._cpu_math import (
     sample_color,
     whitened_chord,
 )
+from ._cpu_tiles import TILE
 from ._cpu_walk import walk_object
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
 __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
 
 
-@njit(**_jit)
+@njit(**_hot)
 def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
                     obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc):
     """reference: trilinear voxel samples at midpoints, exact exponential compositing. Each
@@ -82,7 +84,7 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
                 return
 
 
-@njit(**_jit)
+@njit(**_hot)
 def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv,
                 g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, max_depth):
     """The seed paper: closest hit (smallest entry, ties by id) entering at or after the current
@@ -142,19 +144,43 @@ def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_it
         st[11] = bt1
 
 
-@njit(**_jit)
+@njit(**_hot)
+def argsort_small(keys, idx, n):
+    """idx[:n] = the stable argsort of keys[:n], by insertion (no allocation; the inputs are a few
+    sorted runs, one per object, so the shifts stay short)."""
+    for q in range(n):
+        r = q
+        while r > 0 and keys[idx[r - 1]] > keys[q]:
+            idx[r] = idx[r - 1]
+            r -= 1
+        idx[r] = q
+
+
+@njit(**_hot)
+def sort_small(vals, n):
+    """vals[:n] sorted in place, by insertion (see argsort_small)."""
+    for q in range(1, n):
+        v = vals[q]
+        r = q
+        while r > 0 and vals[r - 1] > v:
+            vals[r] = vals[r - 1]
+            r -= 1
+        vals[r] = v
+
+
+@njit(**_hot)
 def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
     """Several objects: the interval boundaries sorted (pieces between them have a constant set
     of covering leaves, at most one per object); returns the piece count."""
-    srt[:n] = np.argsort(iv_ta[:n], kind="mergesort")
+    argsort_small(iv_ta, srt, n)
     for q in range(n):
         bnd[q] = iv_ta[q]
         bnd[n + q] = iv_tb[q]
-    bnd[:2 * n] = np.sort(bnd[:2 * n])
+    sort_small(bnd, 2 * n)
     return 2 * n - 1
 
 
-@njit(**_jit)
+@njit(**_hot)
 def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj,
                  cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
                  g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls,
@@ -207,6 +233,20 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
             return
 
 
+@njit(**_hot)
+def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
+               cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
+               g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs,
+               hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+    """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
+    argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
+    return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
+                       cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
+                       g_obj, g_clo, g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
+                       tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, svals,
+                       sact, samp, acc, cb, qs, fs)
+
+
 @njit(**_jit)
 def ray_scratch(cap):
     """Per-ray hit arrays for trace_gauss, room for cap hits: records, ids, the event queue
@@ -216,14 +256,16 @@ def ray_scratch(cap):
             np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap))
 
 
-@njit(**_jit)
-def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
-               cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
-               g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-               obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, out_rgba, out_depth,
-               out_value, out_segs):
-    """One image row. Kept out of render_rows' prange body on purpose: per-pixel calls made from
-    inside a parfor body with many array arguments measured ~18 us each here."""
+@njit(**_hot)
+def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
+                  cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
+                  g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
+                  obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
+                  t_box, t_lb, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb, iv_obj,
+                  iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp,
+                  acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp):
+    """Pixels i0.. of row j (no allocation, no reference counting: see _cpu_math._hot). Returns
+    -1, or the pixel whose ray needs more hit rows than Hs has."""
     W = int(cam[1])
     Hh = int(cam[2])
     ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
@@ -234,6 +276,97 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
     bgr, bgg, bgb, bga = settings[3], settings[4], settings[5], settings[6]
     nsteps = int(settings[7])
     maxd = settings[8]
+    tiled = mode <= 1 and t_start.shape[0] > 1
+    ntx = (W + TILE - 1) // TILE
+    segs = 0.0
+    py = ((j + 0.5) / Hh - 0.5) * ey + offy
+    for i in range(i0, W):
+        px = ((i + 0.5) / W - 0.5) * ex + offx
+        if cam[0] < 0.5:
+            dcx = cam[7] * px + cam[8] * py - cam[9]
+            dcy = cam[10] * px + cam[11] * py - cam[12]
+            dcz = cam[13] * px + cam[14] * py - cam[15]
+            nrm = math.sqrt(dcx * dcx + dcy * dcy + dcz * dcz)
+            dwx, dwy, dwz = dcx / nrm, dcy / nrm, dcz / nrm
+            owx, owy, owz = cam[16], cam[17], cam[18]
+        else:
+            dwx, dwy, dwz = -cam[9], -cam[12], -cam[15]
+            owx = cam[16] + px * cam[7] + py * cam[8]
+            owy = cam[17] + px * cam[10] + py * cam[11]
+            owz = cam[18] + px * cam[13] + py * cam[14]
+        tl = (j // TILE) * ntx + i // TILE
+        n = t_start[tl + 1] - t_start[tl] if tiled else 0
+        for ob in range(n_obj):
+            M = w2i[ob]
+            ox = M[0, 0] * owx + M[0, 1] * owy + M[0, 2] * owz + M[0, 3]
+            oy = M[1, 0] * owx + M[1, 1] * owy + M[1, 2] * owz + M[1, 3]
+            oz = M[2, 0] * owx + M[2, 1] * owy + M[2, 2] * owz + M[2, 3]
+            dx = M[0, 0] * dwx + M[0, 1] * dwy + M[0, 2] * dwz
+            dy = M[1, 0] * dwx + M[1, 1] * dwy + M[1, 2] * dwz
+            dz = M[2, 0] * dwx + M[2, 1] * dwy + M[2, 2] * dwz
+            ro[ob, 0], ro[ob, 1], ro[ob, 2] = ox, oy, oz
+            rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
+            if not tiled:
+                n = walk_object(ox, oy, oz, dx, dy, dz, nmin[ob], ndims[ob], noff[ob], node_table,
+                                node_cells, cell_skip, ob, iv_ta, iv_tb, iv_obj, iv_cell, n, max_walk)
+        st[0] = 1.0
+        st[1] = 0.0
+        st[2] = 0.0
+        st[3] = 0.0
+        st[4] = BG_DEPTH
+        st[5] = 0.0
+        st[6] = 0.0
+        st[7] = 0.0
+        st[8] = 0.0
+        st[9] = tmin_T
+        st[10] = 0.0
+        st[11] = -INF
+        if n == 0:
+            pass
+        elif mode >= 2:
+            trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
+                         cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col,
+                         g_val, g_obj, g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz,
+                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc)
+        else:
+            if tiled:
+                rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_box, t_lb,
+                                 ro, rd, g_rec, g_col, g_val, g_obj, k2, tau_max, obj_step,
+                                 obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
+                                 ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
+            else:
+                rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
+                                cell_start, cell_items, face_start, face_items, g_rec, g_sph,
+                                obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tau_max, obj_step,
+                                obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
+                                ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
+            if rc == OVERFLOW:
+                out_segs[jr] += segs
+                return i
+        T = st[0]
+        out_rgba[jr, i, 0] = st[1] + T * bgr * bga
+        out_rgba[jr, i, 1] = st[2] + T * bgg * bga
+        out_rgba[jr, i, 2] = st[3] + T * bgb * bga
+        out_rgba[jr, i, 3] = (1.0 - T) + T * bga
+        out_depth[jr, i] = st[4]
+        out_value[jr, i] = st[5] / st[6] if st[6] > 0.0 else 0.0
+        segs += st[7]
+    out_segs[jr] += segs
+    return -1
+
+
+
+
+@njit(**_jit)
+def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
+               cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
+               g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
+               obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
+               t_box, t_lb, out_rgba, out_depth, out_value, out_segs):
+    """One image row: the scratch arrays, then render_pixels (grown and resumed when a ray
+    needs more hit rows). Kept out of render_rows' prange body on purpose: per-pixel calls made
+    from inside a parfor body with many array arguments measured ~18 us each here."""
+    n_obj = w2i.shape[0]
     iv_ta = np.empty(max_walk)
     iv_tb = np.empty(max_walk)
     iv_obj = np.empty(max_walk, np.int32)
@@ -252,95 +385,43 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
     acc = np.empty(6)  # one sample's sums (add_sample)
     cb = np.empty(6)  # particles: colour bounds of an interval's members
     st = np.empty(12)
+    qs = np.empty(5, np.int64)  # sweep state (_cpu_gauss)
+    fs = np.empty(4)
+    # per-ray hit scratch (particles/field), grown on demand
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
     Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp = ray_scratch(cap)
-    segs = 0.0
-    py = ((j + 0.5) / Hh - 0.5) * ey + offy
-    for i in range(W):
-        px = ((i + 0.5) / W - 0.5) * ex + offx
-        if cam[0] < 0.5:
-            dcx = cam[7] * px + cam[8] * py - cam[9]
-            dcy = cam[10] * px + cam[11] * py - cam[12]
-            dcz = cam[13] * px + cam[14] * py - cam[15]
-            nrm = math.sqrt(dcx * dcx + dcy * dcy + dcz * dcz)
-            dwx, dwy, dwz = dcx / nrm, dcy / nrm, dcz / nrm
-            owx, owy, owz = cam[16], cam[17], cam[18]
-        else:
-            dwx, dwy, dwz = -cam[9], -cam[12], -cam[15]
-            owx = cam[16] + px * cam[7] + py * cam[8]
-            owy = cam[17] + px * cam[10] + py * cam[11]
-            owz = cam[18] + px * cam[13] + py * cam[14]
-        n = 0
-        for ob in range(n_obj):
-            M = w2i[ob]
-            ox = M[0, 0] * owx + M[0, 1] * owy + M[0, 2] * owz + M[0, 3]
-            oy = M[1, 0] * owx + M[1, 1] * owy + M[1, 2] * owz + M[1, 3]
-            oz = M[2, 0] * owx + M[2, 1] * owy + M[2, 2] * owz + M[2, 3]
-            dx = M[0, 0] * dwx + M[0, 1] * dwy + M[0, 2] * dwz
-            dy = M[1, 0] * dwx + M[1, 1] * dwy + M[1, 2] * dwz
-            dz = M[2, 0] * dwx + M[2, 1] * dwy + M[2, 2] * dwz
-            ro[ob, 0], ro[ob, 1], ro[ob, 2] = ox, oy, oz
-            rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
-            n = walk_object(ox, oy, oz, dx, dy, dz, nmin[ob], ndims[ob], noff[ob], node_table,
-                            node_cells, cell_skip, ob, iv_ta, iv_tb, iv_obj, iv_cell, n, max_walk)
-        while True:
-            st[0] = 1.0
-            st[1] = 0.0
-            st[2] = 0.0
-            st[3] = 0.0
-            st[4] = BG_DEPTH
-            st[5] = 0.0
-            st[6] = 0.0
-            st[7] = 0.0
-            st[8] = 0.0
-            st[9] = tmin_T
-            st[10] = 0.0
-            st[11] = -INF
-            if n == 0:
-                break
-            if mode >= 2:
-                trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd,
-                             act_iv, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu,
-                             g_inv, g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, maxd,
-                             obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls, tf_lut,
-                             tf_par, samp, acc)
-                break
-            if n_obj == 1:
-                for q in range(n):
-                    srt[q] = q
-            else:
-                srt[:n] = np.argsort(iv_ta[:n], kind="mergesort")
-            rc = trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
-                             cell_start, cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj,
-                             g_clo, g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
-                             tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, pos, mem,
-                             tmp, svals, sact, samp, acc, cb)
-            if rc != OVERFLOW:
-                break
-            cap *= 2  # more Gaussians on this ray than ever before in this row: retry
-            Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp = ray_scratch(cap)
-        T = st[0]
-        out_rgba[jr, i, 0] = st[1] + T * bgr * bga
-        out_rgba[jr, i, 1] = st[2] + T * bgg * bga
-        out_rgba[jr, i, 2] = st[3] + T * bgb * bga
-        out_rgba[jr, i, 3] = (1.0 - T) + T * bga
-        out_depth[jr, i] = st[4]
-        out_value[jr, i] = st[5] / st[6] if st[6] > 0.0 else 0.0
-        segs += st[7]
-    out_segs[jr] = segs
+    out_segs[jr] = 0.0
+    i = 0
+    while True:
+        i = render_pixels(i, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
+                          cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
+                          g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
+                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par,
+                          settings, max_walk, t_start, t_items, t_box, t_lb, out_rgba, out_depth,
+                          out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
+                          cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
+                          Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp)
+        if i < 0:
+            return
+        cap *= 2  # more Gaussians on ray i than this row's scratch holds: grow, redo it
+        Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp = ray_scratch(cap)
 
 
 @njit(parallel=True, **_jit)
 def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, out_rgba, out_depth,
-                out_value, out_segs):
-    """Render rows [row0, row1) into out_* (indexed from 0 = row0).
+                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items, t_box,
+                t_lb, row_order, out_rgba, out_depth, out_value, out_segs):
+    """Render rows [row0, row1) into out_* (indexed from 0 = row0), in the order row_order: the
+    threads get contiguous blocks of it, so spreading each block over the image balances them
+    (an object in the top half would otherwise all go to one thread).
     settings: [T_min, tau_max, k, bg_r, bg_g, bg_b, bg_a, paper_steps, paper_max_depth]."""
-    for jr in prange(row1 - row0):
+    for q in prange(row1 - row0):
+        jr = row_order[q]
         render_row(jr, row0 + jr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                    cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
                    g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step,
-                   tf_lut, tf_par, settings, max_walk, out_rgba, out_depth, out_value, out_segs)
+                   tf_lut, tf_par, settings, max_walk, t_start, t_items, t_box, t_lb, out_rgba,
+                   out_depth, out_value, out_segs)

@@ -1,7 +1,9 @@
 """Particles and field modes: each ray tests every Gaussian once and sweeps its chords in
-(t, id) order, streaming behind the leaf walk so early termination still saves the work.
+(t, id) order, streaming behind its candidate list so early termination still saves the work.
+Candidates come from the frame's screen tile (trace_tiles, ordered by a lower bound of the entry
+time: see _cpu_tiles) or, when there are no tile lists, from the leaf walk (trace_gauss).
 
-Why this is exact and complete: the walk visits leaf cells front to back and each cell lists the
+Why the walk is exact and complete: it visits leaf cells front to back and each cell lists the
 Gaussians whose support box meets it. A Gaussian met in a cell was already tested if its box also
 covers the previous cell visited for its object (the cells of a box along a line are consecutive),
 so it is skipped there. A chord enters at a point inside its box, hence inside a listed cell the ray
@@ -23,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ._cpu_math import BG_DEPTH, INF, _jit, add_sample, composite, composite_sample, erf_span, sample_color
+from ._cpu_math import BG_DEPTH, INF, _hot, add_sample, composite, composite_sample, erf_span, sample_color
 
 # hit record columns (float64)
 S, E, TS, SA, C, HQ, HA, PK, V, R, RC = range(11)
@@ -31,30 +33,59 @@ NF = 11
 OVERFLOW = -1
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def _before(ta, ka, tb, kb):
     return ta < tb or (ta == tb and ka < kb)
 
 
-@njit(**_jit, inline="always")
-def queue_insert(qt, qk, qh, head, tail, t, key, h):
-    """Insert into the sorted event queue qt/qk/qh[head:tail] ordered by (t, key); key = 2 id +
-    (1 entry, 0 exit) is unique per ray, so the order is total and does not depend on discovery
-    order. Events arrive nearly sorted (cells come front to back): a short shift from the tail,
-    and popping is head += 1. Returns the new tail."""
-    j = tail
-    while j > head and _before(t, key, qt[j - 1], qk[j - 1]):
-        qt[j] = qt[j - 1]
-        qk[j] = qk[j - 1]
-        qh[j] = qh[j - 1]
-        j -= 1
+@njit(**_hot, inline="always")
+def heap_push(qt, qk, qh, n, t, key, h):
+    """Push onto the binary min-heap qt/qk/qh[:n] ordered by (t, key); key = 2 id + (1 entry,
+    0 exit) is unique per ray, so the order is total and does not depend on discovery order.
+    A heap, not a sorted array: dense volumes keep ~100 chords open, and keeping an array sorted
+    shifted ~50 events per insertion there. Returns the new size."""
+    j = n
+    while j > 0:
+        p = (j - 1) >> 1
+        if not _before(t, key, qt[p], qk[p]):
+            break
+        qt[j] = qt[p]
+        qk[j] = qk[p]
+        qh[j] = qh[p]
+        j = p
     qt[j] = t
     qk[j] = key
     qh[j] = h
-    return tail + 1
+    return n + 1
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
+def heap_pop(qt, qk, qh, n):
+    """Drop the root (the caller has read it); returns the new size."""
+    n -= 1
+    t = qt[n]
+    key = qk[n]
+    h = qh[n]
+    j = 0
+    while True:
+        c = 2 * j + 1
+        if c >= n:
+            break
+        if c + 1 < n and _before(qt[c + 1], qk[c + 1], qt[c], qk[c]):
+            c += 1
+        if not _before(qt[c], qk[c], t, key):
+            break
+        qt[j] = qt[c]
+        qk[j] = qk[c]
+        qh[j] = qh[c]
+        j = c
+    qt[j] = t
+    qk[j] = key
+    qh[j] = h
+    return n
+
+
+@njit(**_hot, inline="always")
 def entry_face(dx, dy, dz):
     """Face through which the walk entered a cell from the one at offset -(dx, dy, dz): 2a moving
     +a, 2a + 1 moving -a; -1 when that cell is not a face neighbour (first cell, gaps, edges)."""
@@ -67,7 +98,7 @@ def entry_face(dx, dy, dz):
     return -1
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def add_member(H, hid, g_col, mem, nm, cb, h):
     """Make hit h member nm of the open interval; widen the colour bounds cb = (lo rgb, hi rgb).
     Returns its peak density (the interval's bound term)."""
@@ -79,19 +110,19 @@ def add_member(H, hid, g_col, mem, nm, cb, h):
     return H[h, PK]
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def reset_bounds(cb):
     for c in range(3):
         cb[c] = INF
         cb[3 + c] = -INF
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def spread_of(cb):
     return max(cb[3] - cb[0], cb[4] - cb[1], cb[5] - cb[2])
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def chord_tau(H, h, a, b):
     """Closed-form optical depth of hit h over [a, b] clipped to its chord."""
     if a < H[h, S]:
@@ -105,7 +136,7 @@ def chord_tau(H, h, a, b):
     return H[h, C] * erf_span(sa * (a - ts), sa * (b - ts), sa * (b - a))
 
 
-@njit(**_jit)
+@njit(**_hot)
 def median_depth(st, H, mem, nm, a, b, tsum):
     """Depth pass for a one-Gaussian interval: where T crosses 0.5, by bisection on the closed form."""
     T = st[0]
@@ -126,7 +157,7 @@ def median_depth(st, H, mem, nm, a, b, tsum):
     st[4] = 0.5 * (lo + hi)
 
 
-@njit(**_jit)
+@njit(**_hot)
 def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp):
     """Composite the members' optical depth over [a, b] (see module doc)."""
     if not b > a or nm == 0:
@@ -178,213 +209,309 @@ def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp
             return
 
 
-@njit(**_jit)
+# per-ray sweep state: qs (int64) and fs (float64) columns
+NQ, NACT, NM, NH, ISAMP = range(5)
+BATCH = 8
+IA, LAST, RHO, HSTEP = range(4)
+
+
+@njit(**_hot)
+def sweep_start(mode, qs, fs, cb, rd, obj_step):
+    """Empty queue, no hits; field samples at t_i = (i + 1/2) h from the ray origin, h the finest
+    object step along this ray."""
+    for c in range(5):
+        qs[c] = 0
+    fs[IA] = 0.0
+    fs[LAST] = 0.0
+    fs[RHO] = 0.0
+    reset_bounds(cb)
+    if mode == 1:
+        h = INF
+        for ob in range(rd.shape[0]):
+            dn = math.sqrt(rd[ob, 0] ** 2 + rd[ob, 1] ** 2 + rd[ob, 2] ** 2)
+            h = min(h, obj_step[ob] / dn)
+        fs[HSTEP] = h
+
+
+@njit(**_hot, inline="always")
+def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs):
+    """The exact ray/support test of Gaussian g (object-index-space ray); a hit gets a record in H
+    and its entry and exit events. Returns OVERFLOW when H is full."""
+    ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
+    wx, wy, wz = (ox - g_rec[g, 0]) * ix, (oy - g_rec[g, 1]) * iy, (oz - g_rec[g, 2]) * iz
+    vx, vy, vz = dx * ix, dy * iy, dz * iz
+    aa = vx * vx + vy * vy + vz * vz
+    bb = wx * vx + wy * vy + wz * vz
+    ts = -bb / aa
+    px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
+    qq = px * px + py * py + pz * pz
+    if qq >= k2:
+        return 0
+    hw = math.sqrt((k2 - qq) / aa)
+    s = ts - hw
+    e = ts + hw
+    if s < 0.0:
+        s = 0.0
+    if not e > s:
+        return 0
+    nh = qs[NH]
+    if nh >= H.shape[0]:
+        return OVERFLOW
+    H[nh, S] = s
+    H[nh, E] = e
+    H[nh, TS] = ts
+    H[nh, SA] = math.sqrt(0.5 * aa)
+    H[nh, HQ] = 0.5 * qq
+    H[nh, HA] = 0.5 * aa
+    H[nh, PK] = g_rec[g, 6] * math.exp(-0.5 * qq)
+    H[nh, C] = H[nh, PK] * math.sqrt(math.pi / (2.0 * aa))
+    hid[nh] = g
+    nq = heap_push(ev_t, ev_k, ev_h, qs[NQ], s, 2 * np.int64(g) + 1, nh)
+    qs[NQ] = heap_push(ev_t, ev_k, ev_h, nq, e, 2 * np.int64(g), nh)
+    qs[NH] = nh + 1
+    return 0
+
+
+@njit(**_hot)
+def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb, g_col,
+                    g_val, tau_max):
+    """Particles: consume the events before horizon (see module doc). Returns 1 once the ray is
+    opaque (early termination)."""
+    nq, nact, nm = qs[NQ], qs[NACT], qs[NM]
+    a, last_t, rho = fs[IA], fs[LAST], fs[RHO]
+    done = 0
+    while nq > 0 and ev_t[0] < horizon:
+        t = ev_t[0]
+        key = ev_k[0]
+        h = ev_h[0]
+        nq = heap_pop(ev_t, ev_k, ev_h, nq)
+        if nm > 0:
+            if t < last_t:
+                t = last_t  # a chord found late by rounding: starts where the sweep is
+            if t > last_t and last_t > a:
+                spread = spread_of(cb)
+                if rho * (t - a) * spread > tau_max:
+                    close_interval(st, H, hid, mem, nm, a, last_t, spread, g_col, g_val, tau_max, tmp)
+                    if st[0] < st[9]:
+                        done = 1
+                        break
+                    a = last_t  # the active set carries over as the new members
+                    rho = 0.0
+                    reset_bounds(cb)
+                    for k in range(nact):
+                        rho += add_member(H, hid, g_col, mem, k, cb, act[k])
+                    nm = nact
+        if key & 1:  # entry
+            pos[h] = nact
+            act[nact] = h
+            nact += 1
+            if nm == 0:
+                a = t
+            rho += add_member(H, hid, g_col, mem, nm, cb, h)
+            nm += 1
+        else:  # exit
+            k = pos[h]
+            lst = act[nact - 1]
+            act[k] = lst
+            pos[lst] = k
+            nact -= 1
+            if nact == 0:
+                close_interval(st, H, hid, mem, nm, a, t, spread_of(cb), g_col, g_val, tau_max, tmp)
+                if st[0] < st[9]:
+                    done = 1
+                    break
+                nm = 0
+                rho = 0.0
+                reset_bounds(cb)
+        last_t = t
+    qs[NQ], qs[NACT], qs[NM] = nq, nact, nm
+    fs[IA], fs[LAST], fs[RHO] = a, last_t, rho
+    return done
+
+
+@njit(**_hot)
+def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, g_rec, g_obj, ro, rd,
+                obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc):
+    """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque."""
+    nq, nact, isamp = qs[NQ], qs[NACT], qs[ISAMP]
+    hstep = fs[HSTEP]
+    n_obj = ro.shape[0]
+    done = 0
+    while True:
+        ti = (isamp + 0.5) * hstep
+        if not ti < horizon:
+            break
+        while nq > 0 and ev_t[0] <= ti:
+            key = ev_k[0]
+            h = ev_h[0]
+            nq = heap_pop(ev_t, ev_k, ev_h, nq)
+            # the active chords' V, R, RC live in H's rows by active slot (not by hit), so the
+            # per-sample loop below reads them contiguously
+            if key & 1:
+                k = nact
+                pos[h] = k
+                act[k] = h
+                nact += 1
+                d = ti - H[h, TS]
+                ha = H[h, HA]
+                H[k, V] = g_rec[hid[h], 6] * math.exp(-(H[h, HQ] + ha * d * d))
+                H[k, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
+                H[k, RC] = math.exp(-2.0 * ha * hstep * hstep)
+            else:
+                k = pos[h]
+                last = nact - 1
+                lst = act[last]
+                act[k] = lst
+                pos[lst] = k
+                H[k, V] = H[last, V]
+                H[k, R] = H[last, R]
+                H[k, RC] = H[last, RC]
+                nact -= 1
+        if nact == 0:
+            if nq == 0 or not ev_t[0] < horizon:
+                # nothing known ahead: resume at the first sample not before the horizon
+                if horizon < INF:
+                    isamp = max(isamp, int(math.ceil(horizon / hstep - 0.5)))
+                break
+            isamp = max(isamp + 1, int(math.ceil(ev_t[0] / hstep - 0.5)))
+            continue
+        if n_obj == 1:
+            sv = 0.0
+            for k in range(nact):
+                sv += H[k, V]
+                H[k, V] *= H[k, R]
+                H[k, R] *= H[k, RC]
+            svals[0] = sv
+            sact[0] = 1
+        else:
+            for ob in range(n_obj):
+                svals[ob] = 0.0
+                sact[ob] = 0
+            for k in range(nact):
+                ob = g_obj[hid[act[k]]]
+                svals[ob] += H[k, V]
+                sact[ob] = 1
+                H[k, V] *= H[k, R]
+                H[k, R] *= H[k, RC]
+        st[7] += nact
+        acc[:] = 0.0
+        for ob in range(n_obj):
+            if sact[ob] == 0:
+                continue
+            x = ro[ob, 0] + ti * rd[ob, 0]
+            y = ro[ob, 1] + ti * rd[ob, 1]
+            z = ro[ob, 2] + ti * rd[ob, 2]
+            sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
+            add_sample(acc, samp)
+        isamp += 1
+        if acc[0] > 0.0:
+            composite_sample(st, acc, ti, hstep)
+            if st[0] < st[9]:
+                done = 1
+                break
+    qs[NQ], qs[NACT], qs[ISAMP] = nq, nact, isamp
+    return done
+
+
+@njit(**_hot)
+def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb, g_col, g_val,
+          tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp,
+          acc):
+    if mode == 0:
+        return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp,
+                               cb, g_col, g_val, tau_max)
+    return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, g_rec, g_obj, ro,
+                       rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
+
+
+@njit(**_hot)
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H, hid,
-                ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb):
-    """One ray, modes 0 (particles) and 1 (field), over the n visited cells in srt order.
+                ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+    """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order.
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
-    cap = H.shape[0]
-    nh = 0      # hits
-    e0 = 0      # pending events: ev_*[e0:e1], sorted
-    e1 = 0
-    nact = 0    # active hits (act[], pos[h] = slot)
-    # particles: the open interval [a, ...), its members, bound terms
-    nm = 0
-    a = 0.0
-    last_t = 0.0
-    rho = 0.0
-    reset_bounds(cb)  # cb: the members' colour bounds
-    # field: uniform midpoint samples t_i = tf0 + (i + 1/2) h
-    n_obj = ro.shape[0]
-    hstep = INF
-    tf0 = 0.0
-    isamp = 0
-    if mode == 1:
-        tf0 = iv_ta[srt[0]]
-        for q in range(n):
-            ob = iv_obj[srt[q]]
-            dn = math.sqrt(rd[ob, 0] ** 2 + rd[ob, 1] ** 2 + rd[ob, 2] ** 2)
-            hstep = min(hstep, obj_step[ob] / dn)
-    for ob in range(n_obj):
+    sweep_start(mode, qs, fs, cb, rd, obj_step)
+    for ob in range(ro.shape[0]):
         lastc[ob, 0] = -(1 << 62)
-    for q in range(n + 1):
+    for q in range(n):
         # --- 1. test the Gaussians first met in cell q
-        if q < n:
-            iv = srt[q]
-            ob = iv_obj[iv]
-            cid = iv_cell[iv]
-            ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
-            dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
-            ox32 = np.float32(ox - obj_ref[ob, 0])
-            oy32 = np.float32(oy - obj_ref[ob, 1])
-            oz32 = np.float32(oz - obj_ref[ob, 2])
-            dx32, dy32, dz32 = np.float32(dx), np.float32(dy), np.float32(dz)
-            dd32 = dx32 * dx32 + dy32 * dy32 + dz32 * dz32
-            near = ox32 * ox32 + oy32 * oy32 + oz32 * oz32 < 1e8  # float32 good to ~1e-3 voxel
-            cx, cy, cz = cell_xyz[cid, 0], cell_xyz[cid, 1], cell_xyz[cid, 2]
-            lx, ly, lz = lastc[ob, 0], lastc[ob, 1], lastc[ob, 2]
-            f = entry_face(cx - lx, cy - ly, cz - lz)
-            if f >= 0:  # came from the face neighbour: only the Gaussians that start here
-                lst = face_items
-                j0 = face_start[6 * cid + f]
-                j1 = face_start[6 * cid + f + 1]
-            else:
-                lst = cell_items
-                j0 = cell_start[cid]
-                j1 = cell_start[cid + 1]
-            for j in range(j0, j1):
-                g = lst[j]
-                if g_rec[g, 6] == 0.0:
-                    continue
-                if f < 0 and (g_clo[g, 0] <= lx and lx <= g_chi[g, 0] and g_clo[g, 1] <= ly
-                              and ly <= g_chi[g, 1] and g_clo[g, 2] <= lz and lz <= g_chi[g, 2]):
-                    continue  # its box covers the previous cell: tested there
-                # cheap rejection on a 16-byte bounding sphere (float32 near the object's
-                # reference point, radius widened for the rounding); survivors: the exact test
-                if near:
-                    cxp = (g_sph[g, 1] - oy32) * dz32 - (g_sph[g, 2] - oz32) * dy32
-                    cyp = (g_sph[g, 2] - oz32) * dx32 - (g_sph[g, 0] - ox32) * dz32
-                    czp = (g_sph[g, 0] - ox32) * dy32 - (g_sph[g, 1] - oy32) * dx32
-                    if cxp * cxp + cyp * cyp + czp * czp > g_sph[g, 3] * dd32:
-                        continue
-                ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
-                wx, wy, wz = (ox - g_rec[g, 0]) * ix, (oy - g_rec[g, 1]) * iy, (oz - g_rec[g, 2]) * iz
-                vx, vy, vz = dx * ix, dy * iy, dz * iz
-                aa = vx * vx + vy * vy + vz * vz
-                bb = wx * vx + wy * vy + wz * vz
-                ts = -bb / aa
-                px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
-                qq = px * px + py * py + pz * pz
-                if qq >= k2:
-                    continue
-                hw = math.sqrt((k2 - qq) / aa)
-                s = ts - hw
-                e = ts + hw
-                if s < 0.0:
-                    s = 0.0
-                if not e > s:
-                    continue
-                if nh >= cap:
-                    return OVERFLOW
-                H[nh, S] = s
-                H[nh, E] = e
-                H[nh, TS] = ts
-                H[nh, SA] = math.sqrt(0.5 * aa)
-                H[nh, HQ] = 0.5 * qq
-                H[nh, HA] = 0.5 * aa
-                H[nh, PK] = g_rec[g, 6] * math.exp(-0.5 * qq)
-                H[nh, C] = H[nh, PK] * math.sqrt(math.pi / (2.0 * aa))
-                hid[nh] = g
-                e1 = queue_insert(ev_t, ev_k, ev_h, e0, e1, s, 2 * np.int64(g) + 1, nh)
-                e1 = queue_insert(ev_t, ev_k, ev_h, e0, e1, e, 2 * np.int64(g), nh)
-                nh += 1
-            lastc[ob, 0] = cx
-            lastc[ob, 1] = cy
-            lastc[ob, 2] = cz
-        horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
-        # --- 2. sweep what is complete before the horizon
-        if mode == 0:
-            while e0 < e1 and ev_t[e0] < horizon:
-                t = ev_t[e0]
-                key = ev_k[e0]
-                h = ev_h[e0]
-                e0 += 1
-                if nm > 0:
-                    if t < last_t:
-                        t = last_t  # a chord found late by rounding: starts where the sweep is
-                    if t > last_t and last_t > a:
-                        spread = spread_of(cb)
-                        if rho * (t - a) * spread > tau_max:
-                            close_interval(st, H, hid, mem, nm, a, last_t, spread, g_col, g_val,
-                                           tau_max, tmp)
-                            if st[0] < st[9]:
-                                return 0
-                            a = last_t  # the active set carries over as the new members
-                            rho = 0.0
-                            reset_bounds(cb)
-                            for k in range(nact):
-                                rho += add_member(H, hid, g_col, mem, k, cb, act[k])
-                            nm = nact
-                if key & 1:  # entry
-                    pos[h] = nact
-                    act[nact] = h
-                    nact += 1
-                    if nm == 0:
-                        a = t
-                    rho += add_member(H, hid, g_col, mem, nm, cb, h)
-                    nm += 1
-                else:  # exit
-                    k = pos[h]
-                    lst = act[nact - 1]
-                    act[k] = lst
-                    pos[lst] = k
-                    nact -= 1
-                    if nact == 0:
-                        close_interval(st, H, hid, mem, nm, a, t, spread_of(cb), g_col, g_val,
-                                       tau_max, tmp)
-                        if st[0] < st[9]:
-                            return 0
-                        nm = 0
-                        rho = 0.0
-                        reset_bounds(cb)
-                last_t = t
+        iv = srt[q]
+        ob = iv_obj[iv]
+        cid = iv_cell[iv]
+        ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
+        dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
+        ox32 = np.float32(ox - obj_ref[ob, 0])
+        oy32 = np.float32(oy - obj_ref[ob, 1])
+        oz32 = np.float32(oz - obj_ref[ob, 2])
+        dx32, dy32, dz32 = np.float32(dx), np.float32(dy), np.float32(dz)
+        dd32 = dx32 * dx32 + dy32 * dy32 + dz32 * dz32
+        near = ox32 * ox32 + oy32 * oy32 + oz32 * oz32 < 1e8  # float32 good to ~1e-3 voxel
+        cx, cy, cz = cell_xyz[cid, 0], cell_xyz[cid, 1], cell_xyz[cid, 2]
+        lx, ly, lz = lastc[ob, 0], lastc[ob, 1], lastc[ob, 2]
+        f = entry_face(cx - lx, cy - ly, cz - lz)
+        if f >= 0:  # came from the face neighbour: only the Gaussians that start here
+            lst = face_items
+            j0 = face_start[6 * cid + f]
+            j1 = face_start[6 * cid + f + 1]
         else:
-            while True:
-                ti = tf0 + (isamp + 0.5) * hstep
-                if not ti < horizon:
-                    break
-                while e0 < e1 and ev_t[e0] <= ti:
-                    key = ev_k[e0]
-                    h = ev_h[e0]
-                    e0 += 1
-                    if key & 1:
-                        pos[h] = nact
-                        act[nact] = h
-                        nact += 1
-                        d = ti - H[h, TS]
-                        ha = H[h, HA]
-                        H[h, V] = g_rec[hid[h], 6] * math.exp(-(H[h, HQ] + ha * d * d))
-                        H[h, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
-                        H[h, RC] = math.exp(-2.0 * ha * hstep * hstep)
-                    else:
-                        k = pos[h]
-                        lst = act[nact - 1]
-                        act[k] = lst
-                        pos[lst] = k
-                        nact -= 1
-                if nact == 0:
-                    if e0 == e1 or not ev_t[e0] < horizon:
-                        # nothing known ahead: resume at the first sample not before the horizon
-                        if horizon < INF:
-                            isamp = max(isamp, int(math.ceil((horizon - tf0) / hstep - 0.5)))
-                        break
-                    isamp = max(isamp + 1, int(math.ceil((ev_t[e0] - tf0) / hstep - 0.5)))
+            lst = cell_items
+            j0 = cell_start[cid]
+            j1 = cell_start[cid + 1]
+        for j in range(j0, j1):
+            g = lst[j]
+            if g_rec[g, 6] == 0.0:
+                continue
+            if f < 0 and (g_clo[g, 0] <= lx and lx <= g_chi[g, 0] and g_clo[g, 1] <= ly
+                          and ly <= g_chi[g, 1] and g_clo[g, 2] <= lz and lz <= g_chi[g, 2]):
+                continue  # its box covers the previous cell: tested there
+            # cheap rejection on a 16-byte bounding sphere (float32 near the object's
+            # reference point, radius widened for the rounding); survivors: the exact test
+            if near:
+                cxp = (g_sph[g, 1] - oy32) * dz32 - (g_sph[g, 2] - oz32) * dy32
+                cyp = (g_sph[g, 2] - oz32) * dx32 - (g_sph[g, 0] - ox32) * dz32
+                czp = (g_sph[g, 0] - ox32) * dy32 - (g_sph[g, 1] - oy32) * dx32
+                if cxp * cxp + cyp * cyp + czp * czp > g_sph[g, 3] * dd32:
                     continue
-                for ob in range(n_obj):
-                    svals[ob] = 0.0
-                    sact[ob] = 0
-                for k in range(nact):
-                    h = act[k]
-                    ob = g_obj[hid[h]]
-                    svals[ob] += H[h, V]
-                    sact[ob] = 1
-                    H[h, V] *= H[h, R]
-                    H[h, R] *= H[h, RC]
-                st[7] += nact
-                acc[:] = 0.0
-                for ob in range(n_obj):
-                    if sact[ob] == 0:
-                        continue
-                    x = ro[ob, 0] + ti * rd[ob, 0]
-                    y = ro[ob, 1] + ti * rd[ob, 1]
-                    z = ro[ob, 2] + ti * rd[ob, 2]
-                    sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
-                    add_sample(acc, samp)
-                isamp += 1
-                if acc[0] > 0.0:
-                    composite_sample(st, acc, ti, hstep)
-                    if st[0] < st[9]:
-                        return 0
+            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs) != 0:
+                return OVERFLOW
+        lastc[ob, 0] = cx
+        lastc[ob, 1] = cy
+        lastc[ob, 2] = cz
+        # --- 2. sweep what is complete before the next cell's entry
+        horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
+        if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb,
+                 g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
+                 tf_par, svals, sact, samp, acc):
+            return 0
+    return 0
+
+
+@njit(**_hot)
+def trace_tiles(mode, st, i, j, t0, t1, t_items, t_box, t_lb, ro, rd, g_rec, g_col, g_val, g_obj,
+                k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
+                ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+    """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
+    by the lower bound t_lb of each support's entry: see _cpu_tiles). Returns 0 or OVERFLOW."""
+    sweep_start(mode, qs, fs, cb, rd, obj_step)
+    swept = 0
+    for q in range(t0, t1):
+        g = t_items[q]
+        if i < t_box[g, 0] or i > t_box[g, 1] or j < t_box[g, 2] or j > t_box[g, 3]:
+            continue
+        lbg = t_lb[g]
+        # sweep in batches, after BATCH new hits, up to this support's earliest entry
+        if qs[NH] >= swept + BATCH and ev_t[0] < lbg:
+            swept = qs[NH]
+            if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb,
+                     g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
+                     tf_par, svals, sact, samp, acc):
+                return 0
+        ob = g_obj[g]
+        if test_one(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2], g_rec, k2,
+                    H, hid, ev_t, ev_k, ev_h, qs) != 0:
+            return OVERFLOW
+    sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb, g_col, g_val,
+          tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact,
+          samp, acc)
     return 0

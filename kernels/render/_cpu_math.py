@@ -16,16 +16,20 @@ TWO_OVER_SQRT_PI = 2.0 / math.sqrt(math.pi)
 BG_DEPTH = 1e10
 
 _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+# Per-pixel kernels: no allocation, so no reference counting. With it, numba increfs and decrefs
+# (atomically) every array argument of every call, inlined or not: ~9 ns per array per call,
+# measured at 35-45% of a particles frame.
+_hot = dict(_jit, _nrt=False)
 
 
 
-@njit(**_jit)
+@njit(**_hot)
 def erf_diff(u0, u1):
     """erf(u1) - erf(u0) for u0 <= u1 (see erf_span)."""
     return erf_span(u0, u1, u1 - u0)
 
 
-@njit(**_jit)
+@njit(**_hot)
 def erf_span(u0, u1, h):
     """erf(u1) - erf(u0) for u0 <= u1, given the span h = u1 - u0 computed exactly by the caller
     (sa * (t1 - t0): forming u1 - u0 after rounding loses short spans). Stable: a Taylor series about
@@ -43,7 +47,7 @@ def erf_span(u0, u1, h):
     return math.erf(u1) - math.erf(u0)
 
 
-@njit(**_jit)
+@njit(**_hot)
 def line_integral(ox, oy, oz, dx, dy, dz, t0, t1):
     """Integral over t in [t0, t1] of exp(-|o' + t d'|^2 / 2) (whitened ray): float64 reference
     used by the tests; the kernels inline the same steps."""
@@ -57,7 +61,7 @@ def line_integral(ox, oy, oz, dx, dy, dz, t0, t1):
                                                                          sa * (t1 - t0))
 
 
-@njit(**_jit)
+@njit(**_hot)
 def tf_x(v, par):
     """Normalised TF coordinate in [0, 1]; NaN stays NaN."""
     if par[2] > 0.5:
@@ -87,7 +91,7 @@ def tf_x(v, par):
     return x
 
 
-@njit(**_jit)
+@njit(**_hot)
 def lut_at(lut, x, ch):
     """Linear interpolation of LUT channel ch at x in [0, 1]."""
     k = lut.shape[0]
@@ -102,7 +106,7 @@ def lut_at(lut, x, ch):
 
 
 
-@njit(**_jit)
+@njit(**_hot)
 def composite(st, tau, r, g, b, v, ta, tb):
     """L += T c (1 - e^-tau) (expm1), T *= e^-tau; Value and median Depth bookkeeping.
     st = [T, Lr, Lg, Lb, depth, vsum, wsum, segs, done, ...]."""
@@ -123,7 +127,7 @@ def composite(st, tau, r, g, b, v, ta, tb):
     st[0] = Tn
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def whitened_chord(ox, oy, oz, dx, dy, dz, g_mu, g_inv, g):
     """Ray o + t d against Gaussian g in its whitened frame: (t*, a = |d'|^2, Qmin), with Qmin from
     the closest-point vector (never c - b^2/a, which cancels far from the origin)."""
@@ -137,7 +141,7 @@ def whitened_chord(ox, oy, oz, dx, dy, dz, g_mu, g_inv, g):
 
 
 
-@njit(**_jit)
+@njit(**_hot)
 def sample_color(ob, s, x_idx, y_idx, z_idx, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, out):
     """sigma_t and linear colour of object ob for field value s at index point x."""
     tfi = obj_tf[ob]
@@ -171,7 +175,7 @@ def sample_color(ob, s, x_idx, y_idx, z_idx, obj_kind, obj_tf, obj_ls, tf_lut, t
     out[4] = s
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def add_sample(acc, samp):
     """Add one object's sample (sigma_t, rgb, value) to acc = (sigma, r, g, b, vsum, vweight)."""
     sg = samp[0]
@@ -185,7 +189,7 @@ def add_sample(acc, samp):
             acc[5] += sg
 
 
-@njit(**_jit, inline="always")
+@njit(**_hot, inline="always")
 def composite_sample(st, acc, t, h):
     """Composite the accumulated sample at t over a step h (colours sigma-weighted)."""
     sig = acc[0]

@@ -6,10 +6,10 @@ import math
 
 from numba import njit
 
-from ._cpu_math import INF, LEAF, NL, NODE, _jit
+from ._cpu_math import INF, LEAF, NL, NODE, _hot
 
 
-@njit(**_jit)
+@njit(**_hot)
 def slab(ox, oy, oz, dx, dy, dz, lx, ly, lz, hx, hy, hz, t0, t1):
     """NaN-free slab test: zero direction components are handled explicitly."""
     o = (ox, oy, oz)
@@ -33,7 +33,7 @@ def slab(ox, oy, oz, dx, dy, dz, lx, ly, lz, hx, hy, hz, t0, t1):
     return t0, t1
 
 
-@njit(**_jit)
+@njit(**_hot)
 def dda_axis(o, d, t, size, lo, hi):
     """Integer cell, step, t of the next boundary, t per cell along one axis."""
     c = int(math.floor((o + t * d) / size))
@@ -48,7 +48,7 @@ def dda_axis(o, d, t, size, lo, hi):
     return c, 0, INF, INF
 
 
-@njit(**_jit)
+@njit(**_hot)
 def walk_object(ox, oy, oz, dx, dy, dz, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap):
     """Hierarchical DDA (nodes of 128^3, then leaves of 8^3, integer cell indices) in q-space

@@ -22,6 +22,7 @@ from .scene import RenderScene, same_geometry
 from .transfer import LUT_SIZE, TransferFunction
 
 MODE_IDS = {"particles": 0, "field": 1, "paper": 2, "reference": 3}
+MAX_TILE_ENTRIES = 32_000_000  # screen-tile list entries per frame (int32: 128 MB)
 
 
 class Device(ABC):
@@ -68,10 +69,12 @@ class CPUDevice(Device):
     if given before the kernels are first imported in this process."""
     name = "CPU"
 
-    def __init__(self, threads=None, cache_dir=None, tile_rows=32):
+    def __init__(self, threads=None, cache_dir=None, tile_rows=32, screen_tiles=True):
         _choose_cache_dir(cache_dir)
-        from . import _cpu  # noqa: F401  (compiles or loads cached kernels lazily on first call)
+        from . import _cpu, _cpu_tiles  # noqa: F401  (compiles or loads cached kernels lazily)
         self._k = _cpu
+        self._kt = _cpu_tiles
+        self.screen_tiles = bool(screen_tiles)  # particles/field: screen tiles, else the leaf walk
         self.threads = threads
         self.tile_rows = int(tile_rows)
         self._key = None
@@ -210,6 +213,39 @@ class CPUDevice(Device):
                 skip[sel] = (_range_alpha(t, lo[sel], hi[sel]) <= 0) | (t.density <= 0)
         return skip
 
+    def _screen_tiles(self, mode, scene, camera, g_w):
+        """Per-frame screen-tile lists for the particles and field modes (_cpu_tiles), or empty
+        arrays (the kernels then walk the leaf hierarchy) when switched off or when the lists would
+        pass MAX_TILE_ENTRIES (a camera inside a dense volume puts every support near the eye
+        plane in every tile)."""
+        none = (np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros((1, 4), np.int32), np.zeros(1))
+        A = self.gacc
+        m = A.g_mu.shape[0]
+        if not self.screen_tiles or m == 0 or mode > 1:
+            return none
+        cam = camera.packed()
+        rot, pos = camera.basis()
+        rinv = np.linalg.inv(rot)
+        n = len(scene.objects)
+        cmat = np.zeros((n, 3, 4))
+        onorm = np.zeros(n)
+        for k, o in enumerate(scene.objects):
+            mw = np.asarray(o.matrix_world, np.float64)
+            cmat[k, :, :3] = rinv @ mw[:3, :3]
+            cmat[k, :, 3] = rinv @ (mw[:3, 3] - pos)
+            onorm[k] = np.linalg.norm(mw[:3, :3], 2)
+        box = np.empty((m, 4), np.int32)
+        lb = np.empty(m)
+        kt = self._kt
+        kt.gauss_footprints(cam, cmat, onorm, A.g_mu, A.g_inv, A.g_obj, g_w, float(scene.support_k), box, lb)
+        ntx = (camera.width + kt.TILE - 1) // kt.TILE
+        nty = (camera.height + kt.TILE - 1) // kt.TILE
+        start = kt.tile_counts(box, ntx, nty)
+        np.cumsum(start, out=start)
+        if start[-1] > MAX_TILE_ENTRIES:
+            return none
+        return start, kt.tile_fill(box, lb, start, ntx), box, lb
+
     def render(self, scene, camera, tf, *, rows=None, progress=None, cancel=None):
         import numba
 
@@ -254,6 +290,7 @@ class CPUDevice(Device):
             if g_sph.shape[0] == 0:
                 g_sph = np.zeros((1, 4), np.float32)
         cell_skip = self._cell_skip(mode, acc, g_w, tfs, obj_tf, obj_kind)
+        t_start, t_items, t_box, t_lb = self._screen_tiles(mode, scene, camera, g_w)
         bg = np.asarray(scene.background, np.float64).ravel()
         bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
         settings = np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
@@ -288,7 +325,8 @@ class CPUDevice(Device):
                                     g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph,
                                     obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf,
                                     obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
-                                    o_rgba, o_depth, o_value, segs[a:b])
+                                    t_start, t_items, t_box, t_lb, _spread_rows(b - a), o_rgba,
+                                    o_depth, o_value, segs[a:b])
                 rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
                 a = b
                 if progress is not None:
@@ -303,6 +341,12 @@ class CPUDevice(Device):
         if "Value" in scene.passes:
             out["Value"] = value
         return out
+
+
+def _spread_rows(n, k=16):
+    """0..n-1 as rows 0, 16, 32, ..., then 1, 17, ...: any contiguous half or quarter of it
+    samples the whole image."""
+    return np.concatenate([np.arange(r, n, k) for r in range(k)]).astype(np.int64)
 
 
 def _lut_rgb(lut, x):

@@ -1,0 +1,140 @@
+"""Screen tiles for the particles and field modes: per frame, each visible Gaussian's support
+ellipsoid is projected to the image (its exact bounding rectangle in pixels) and listed in the
+TILE x TILE pixel tiles it covers, each list ordered by a lower bound of the ray distance at which
+any ray can enter the support. A pixel then tests only its tile's Gaussians, front to back: once
+the Gaussians with lower bound below t are tested, every chord entering before t is known, so the
+event sweep can run up to there (the same completeness rule the leaf walk gives).
+
+Why the rectangle is exact for perspective: the image-plane lines x = u (-z) that touch the support
+are the planes through the eye tangent to the ellipsoid, (n . c)^2 = n^T S n with n = (1, 0, u): a
+quadratic in u whose roots bound the footprint (S = the support's shape matrix in camera space).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ._cpu_math import INF, _jit
+
+TILE = 8
+MARGIN_PX = 1e-3  # widen the pixel rectangle for the rounding of the projection
+
+
+@njit(**_jit, inline="always")
+def _px_range(lo, hi, off, ext, n):
+    """Pixels whose centre coordinate ((i + 1/2) / n - 1/2) ext + off lies in [lo, hi]."""
+    a = (lo - off) / ext * n + 0.5 * n - 0.5 - MARGIN_PX
+    b = (hi - off) / ext * n + 0.5 * n - 0.5 + MARGIN_PX
+    a = min(max(a, -1.0), n + 1.0)
+    b = min(max(b, -1.0), n + 1.0)
+    i0 = max(int(math.ceil(a)), 0)
+    i1 = min(int(math.floor(b)), n - 1)
+    return i0, i1
+
+
+@njit(**_jit, inline="always")
+def _roots(c, cz, sxx, sxz, szz):
+    """Tangent-plane roots u (see module doc) for one image axis; c, cz camera coordinates of the
+    centre (cz < 0, in front)."""
+    a = cz * cz - szz
+    b = c * cz - sxz
+    disc = b * b - a * (c * c - sxx)
+    r = math.sqrt(disc) if disc > 0.0 else 0.0
+    u0 = (-b - r) / a
+    u1 = (-b + r) / a
+    return min(u0, u1), max(u0, u1)
+
+
+@njit(parallel=True, **_jit)
+def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
+    """Per Gaussian: box = pixel rectangle (i0, i1, j0, j1; empty when i0 > i1 or j0 > j1) and lb =
+    a lower bound of the ray parameter where rays enter its k-sigma support.
+    cmat[ob] (3x4): index space -> camera coordinates (the camera basis inverse times the object's
+    index-to-world matrix, translation relative to the camera position); onorm[ob]: the spectral
+    norm of the object's index-to-world linear part."""
+    W = int(cam[1])
+    H = int(cam[2])
+    ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
+    ortho = cam[0] > 0.5
+    for g in prange(g_mu.shape[0]):
+        box[g, 0] = 1
+        box[g, 1] = 0
+        box[g, 2] = 1
+        box[g, 3] = 0
+        lb[g] = INF
+        if g_w[g] == 0.0:
+            continue
+        ob = g_obj[g]
+        B = cmat[ob]
+        m0, m1, m2 = g_mu[g, 0], g_mu[g, 1], g_mu[g, 2]
+        cx = B[0, 0] * m0 + B[0, 1] * m1 + B[0, 2] * m2 + B[0, 3]
+        cy = B[1, 0] * m0 + B[1, 1] * m1 + B[1, 2] * m2 + B[1, 3]
+        cz = B[2, 0] * m0 + B[2, 1] * m1 + B[2, 2] * m2 + B[2, 3]
+        s0 = k / g_inv[g, 0]
+        s1 = k / g_inv[g, 1]
+        s2 = k / g_inv[g, 2]
+        s0, s1, s2 = s0 * s0, s1 * s1, s2 * s2
+        sxx = B[0, 0] * B[0, 0] * s0 + B[0, 1] * B[0, 1] * s1 + B[0, 2] * B[0, 2] * s2
+        syy = B[1, 0] * B[1, 0] * s0 + B[1, 1] * B[1, 1] * s1 + B[1, 2] * B[1, 2] * s2
+        szz = B[2, 0] * B[2, 0] * s0 + B[2, 1] * B[2, 1] * s1 + B[2, 2] * B[2, 2] * s2
+        sxz = B[0, 0] * B[2, 0] * s0 + B[0, 1] * B[2, 1] * s1 + B[0, 2] * B[2, 2] * s2
+        syz = B[1, 0] * B[2, 0] * s0 + B[1, 1] * B[2, 1] * s1 + B[1, 2] * B[2, 2] * s2
+        if ortho:
+            rz = math.sqrt(szz)
+            rx = math.sqrt(sxx)
+            ry = math.sqrt(syy)
+            i0, i1 = _px_range(cx - rx, cx + rx, offx, ex, W)
+            j0, j1 = _px_range(cy - ry, cy + ry, offy, ey, H)
+            lbg = -cz - rz
+        elif cz * cz > szz:
+            if cz > 0.0:
+                continue  # wholly behind the eye
+            u0, u1 = _roots(cx, cz, sxx, sxz, szz)
+            v0, v1 = _roots(cy, cz, syy, syz, szz)
+            i0, i1 = _px_range(u0, u1, offx, ex, W)
+            j0, j1 = _px_range(v0, v1, offy, ey, H)
+            rmax = onorm[ob] * k / min(g_inv[g, 0], g_inv[g, 1], g_inv[g, 2])
+            lbg = math.sqrt(cx * cx + cy * cy + cz * cz) - rmax
+        else:  # the support reaches the eye's plane: it may cover any pixel
+            i0, i1, j0, j1 = 0, W - 1, 0, H - 1
+            lbg = -INF
+        box[g, 0], box[g, 1], box[g, 2], box[g, 3] = i0, i1, j0, j1
+        # a hair below, so a chord rounded in index space is never found after its time
+        lb[g] = lbg - 1e-9 * (abs(lbg) + 1.0)
+
+
+@njit(**_jit)
+def tile_counts(box, ntx, nty):
+    """Entries per tile (cnt[t + 1]) and in all."""
+    cnt = np.zeros(ntx * nty + 1, np.int64)
+    for g in range(box.shape[0]):
+        if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
+            continue
+        for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
+            for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+                cnt[ty * ntx + tx + 1] += 1
+    return cnt
+
+
+@njit(parallel=True, **_jit)
+def tile_fill(box, lb, start, ntx):
+    """Tile lists (Gaussian ids, int32), each sorted by (lb, id)."""
+    items = np.empty(start[-1], np.int32)
+    fill = start[:-1].copy()
+    for g in range(box.shape[0]):
+        if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
+            continue
+        for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
+            for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+                t = ty * ntx + tx
+                items[fill[t]] = g
+                fill[t] += 1
+    for t in prange(start.shape[0] - 1):
+        a = start[t]
+        b = start[t + 1]
+        if b - a > 1:
+            order = np.argsort(lb[items[a:b]], kind="mergesort")  # stable: ties keep id order
+            items[a:b] = items[a:b][order]
+    return items
