@@ -27,7 +27,7 @@ from numba import njit
 
 from ._cpu_math import BG_DEPTH, INF, _hot, add_sample, composite, composite_sample, erf_span, sample_color
 
-# hit record columns (float64)
+# hit record columns (float64); field mode keeps V, R, RC by active slot instead (sweep_field)
 S, E, TS, SA, C, HQ, HA, PK, V, R, RC = range(11)
 NF = 11
 OVERFLOW = -1
@@ -36,6 +36,13 @@ OVERFLOW = -1
 @njit(**_hot, inline="always")
 def _before(ta, ka, tb, kb):
     return ta < tb or (ta == tb and ka < kb)
+
+
+@njit(**_hot, inline="always")
+def _put(qt, qk, qh, j, t, key, h):
+    qt[j] = t
+    qk[j] = key
+    qh[j] = h
 
 
 @njit(**_hot, inline="always")
@@ -49,13 +56,9 @@ def heap_push(qt, qk, qh, n, t, key, h):
         p = (j - 1) >> 1
         if not _before(t, key, qt[p], qk[p]):
             break
-        qt[j] = qt[p]
-        qk[j] = qk[p]
-        qh[j] = qh[p]
+        _put(qt, qk, qh, j, qt[p], qk[p], qh[p])
         j = p
-    qt[j] = t
-    qk[j] = key
-    qh[j] = h
+    _put(qt, qk, qh, j, t, key, h)
     return n + 1
 
 
@@ -75,13 +78,9 @@ def heap_pop(qt, qk, qh, n):
             c += 1
         if not _before(qt[c], qk[c], t, key):
             break
-        qt[j] = qt[c]
-        qk[j] = qk[c]
-        qh[j] = qh[c]
+        _put(qt, qk, qh, j, qt[c], qk[c], qh[c])
         j = c
-    qt[j] = t
-    qk[j] = key
-    qh[j] = h
+    _put(qt, qk, qh, j, t, key, h)
     return n
 
 
