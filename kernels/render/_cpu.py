@@ -237,23 +237,22 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
 def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
                g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs,
-               hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+               hid, ev_t, ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
     return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                        cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
                        g_obj, g_clo, g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
-                       tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, svals,
+                       tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp, svals,
                        sact, samp, acc, cb, qs, fs)
 
 
 @njit(**_jit)
 def ray_scratch(cap):
-    """Per-ray hit arrays for trace_gauss, room for cap hits: records, ids, the event queue
-    (2 per hit), the active set, slots, interval members, per-member depths."""
-    return (np.empty((cap, NF)), np.empty(cap, np.int64), np.empty(2 * cap),
-            np.empty(2 * cap, np.int64), np.empty(2 * cap, np.int64), np.empty(cap, np.int64),
-            np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap))
+    """Per-ray hit arrays for trace_gauss, room for cap hits: records, ids, the entry queue
+    (times, keys, hits), the active set (field), interval members (particles), per-member depths."""
+    return (np.empty((cap, NF)), np.empty(cap, np.int64), np.empty(cap), np.empty(cap, np.int64),
+            np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap))
 
 
 @njit(**_hot)
@@ -263,7 +262,7 @@ def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node
                   obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
                   t_box, t_lb, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb, iv_obj,
                   iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp,
-                  acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp):
+                  acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp):
     """Pixels i0.. of row j (no allocation, no reference counting: see _cpu_math._hot). Returns
     -1, or the pixel whose ray needs more hit rows than Hs has."""
     W = int(cam[1])
@@ -333,13 +332,13 @@ def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_box, t_lb,
                                  ro, rd, g_rec, g_col, g_val, g_obj, k2, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
-                                 ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
+                                 ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
             else:
                 rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
                                 cell_start, cell_items, face_start, face_items, g_rec, g_sph,
                                 obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tau_max, obj_step,
                                 obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
-                                ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
+                                ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
             if rc == OVERFLOW:
                 out_segs[jr] += segs
                 return i
@@ -386,11 +385,10 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
     cb = np.empty(6)  # particles: colour bounds of an interval's members
     st = np.empty(12)
     qs = np.empty(5, np.int64)  # sweep state (_cpu_gauss)
-    fs = np.empty(4)
-    # per-ray hit scratch (particles/field), grown on demand
+    fs = np.empty(5)
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
-    Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp = ray_scratch(cap)
+    Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp = ray_scratch(cap)
     out_segs[jr] = 0.0
     i = 0
     while True:
@@ -401,11 +399,11 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           settings, max_walk, t_start, t_items, t_box, t_lb, out_rgba, out_depth,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
-                          Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp)
+                          Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp)
         if i < 0:
             return
         cap *= 2  # more Gaussians on ray i than this row's scratch holds: grow, redo it
-        Hs, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp = ray_scratch(cap)
+        Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp = ray_scratch(cap)
 
 
 @njit(parallel=True, **_jit)

@@ -10,13 +10,18 @@ so it is skipped there. A chord enters at a point inside its box, hence inside a
 visits at or before that time: once the cells entered before t are visited, every chord entering
 before t is known, and the events before t can be swept.
 
-Particles: chords cut the ray into intervals; an interval closes where the active set empties (so
-non-overlapping supports are exact) or when an upper bound of its optical depth x colour spread
-(sum of the members' peak densities x length x spread) would pass tau_max. A closed interval gets
-each member's closed-form optical depth; its colour is their tau-weighted mean, subdivided until
-tau x spread <= tau_max (one colour or one member: exact).
+Only entries are queued (a heap ordered by (t, id)); exits need no events. Particles: chords
+overlapping one another form a cluster that ends at the latest exit of its members, so the next
+entry at or after that ends it (non-overlapping supports are exact). Within a cluster an interval
+closes at an entry when an upper bound of its optical depth x colour spread (sum of the members'
+peak densities x length x spread) would pass tau_max; the members still open carry over. A closed
+interval gets each member's closed-form optical depth, C (erf(u_b) - erf(u_a)), with erf(u_a)
+cached from the member's entry or the previous boundary (one erf per member and boundary); its
+colour is their tau-weighted mean, subdivided until tau x spread <= tau_max (one colour or one
+member: exact).
 Field: midpoint samples on a uniform grid along the ray; each active Gaussian's value is carried
-from sample to sample by two multiplications (exp(-a(t+h)^2) = exp(-a t^2) r, r *= exp(-2 a h^2)).
+from sample to sample by two multiplications (exp(-a(t+h)^2) = exp(-a t^2) r, r *= exp(-2 a h^2)),
+and it leaves the active set at the first sample past its exit.
 """
 from __future__ import annotations
 
@@ -25,11 +30,24 @@ import math
 import numpy as np
 from numba import njit
 
-from ._cpu_math import BG_DEPTH, INF, _hot, add_sample, composite, composite_sample, erf_span, sample_color
+from ._cpu_math import (
+    BG_DEPTH,
+    INF,
+    _hot,
+    add_sample,
+    composite,
+    composite_sample,
+    erf_fast,
+    erf_span,
+    sample_color,
+)
 
-# hit record columns (float64); field mode keeps V, R, RC by active slot instead (sweep_field)
-S, E, TS, SA, C, HQ, HA, PK, V, R, RC = range(11)
-NF = 11
+# hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
+# sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA and at the
+# interval's end FB; field keeps V, R, RC, EX (value, ratios, exit) by active slot (sweep_field)
+S, E, TS, SA, C, HQ, HA, PK, FA, FB = range(10)
+V, R, RC, EX = FA, FB, FA + 2, FA + 3
+NF = 12
 OVERFLOW = -1
 
 
@@ -47,10 +65,9 @@ def _put(qt, qk, qh, j, t, key, h):
 
 @njit(**_hot, inline="always")
 def heap_push(qt, qk, qh, n, t, key, h):
-    """Push onto the binary min-heap qt/qk/qh[:n] ordered by (t, key); key = 2 id + (1 entry,
-    0 exit) is unique per ray, so the order is total and does not depend on discovery order.
-    A heap, not a sorted array: dense volumes keep ~100 chords open, and keeping an array sorted
-    shifted ~50 events per insertion there. Returns the new size."""
+    """Push onto the binary min-heap qt/qk/qh[:n] ordered by (t, key); the key (the Gaussian id) is
+    unique per ray, so the order is total and does not depend on discovery order. A heap, not a
+    sorted array: dense volumes keep ~100 entries pending. Returns the new size."""
     j = n
     while j > 0:
         p = (j - 1) >> 1
@@ -122,8 +139,19 @@ def spread_of(cb):
 
 
 @njit(**_hot, inline="always")
+def erf_at(H, h, t):
+    """erf(u) of hit h at ray distance t clipped to its chord."""
+    if t < H[h, S]:
+        t = H[h, S]
+    if t > H[h, E]:
+        t = H[h, E]
+    return erf_fast(H[h, SA] * (t - H[h, TS]))
+
+
+@njit(**_hot, inline="always")
 def chord_tau(H, h, a, b):
-    """Closed-form optical depth of hit h over [a, b] clipped to its chord."""
+    """Closed-form optical depth of hit h over [a, b] clipped to its chord (short spans by the
+    series in erf_span)."""
     if a < H[h, S]:
         a = H[h, S]
     if b > H[h, E]:
@@ -157,31 +185,55 @@ def median_depth(st, H, mem, nm, a, b, tsum):
 
 
 @njit(**_hot)
+def advance_taus(H, mem, nm, a, b, last, tmp):
+    """Each member's optical depth over [a, b] into tmp (its erf at b becomes its cached FA; at
+    the interval's end, last, it is already in FB); returns their sum."""
+    tsum = 0.0
+    for k in range(nm):
+        h = mem[k]
+        if H[h, E] <= a or H[h, S] >= b:  # no part of its chord here: FA stays
+            tmp[k] = 0.0
+            continue
+        fb = H[h, FB] if last else erf_at(H, h, b)
+        tk = H[h, C] * (fb - H[h, FA])
+        H[h, FA] = fb
+        tmp[k] = tk
+        tsum += tk
+    return tsum
+
+
+@njit(**_hot)
 def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp):
-    """Composite the members' optical depth over [a, b] (see module doc)."""
+    """Composite the members' optical depth over [a, b] (see module doc); leaves each member's
+    FA at b."""
     if not b > a or nm == 0:
         return
     tsum = 0.0
     for k in range(nm):
-        tk = chord_tau(H, mem[k], a, b)
+        h = mem[k]
+        fb = erf_at(H, h, b)
+        H[h, FB] = fb
+        tk = H[h, C] * (fb - H[h, FA])
         tmp[k] = tk
         tsum += tk
     st[7] += nm
     if tsum <= 0.0:
+        for k in range(nm):
+            H[mem[k], FA] = H[mem[k], FB]
         return
     nsub = 1
     if nm > 1 and tau_max > 0.0 and tsum * spread > tau_max:
         nsub = min(int(math.ceil(tsum * spread / tau_max)), 1024)
-    elif nm == 1:
-        median_depth(st, H, mem, 1, a, b, tsum)
+    else:
+        if nm == 1:
+            median_depth(st, H, mem, 1, a, b, tsum)
+        for k in range(nm):
+            H[mem[k], FA] = H[mem[k], FB]
     for s in range(nsub):
         if nsub > 1:
             a0 = a + (b - a) * s / nsub
             a1 = a + (b - a) * (s + 1) / nsub if s + 1 < nsub else b
-            tsum = 0.0
-            for k in range(nm):
-                tmp[k] = chord_tau(H, mem[k], a0, a1)
-                tsum += tmp[k]
+            tsum = advance_taus(H, mem, nm, a0, a1, s + 1 == nsub, tmp)
             st[7] += nm
         else:
             a0, a1 = a, b
@@ -211,7 +263,7 @@ def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp
 # per-ray sweep state: qs (int64) and fs (float64) columns
 NQ, NACT, NM, NH, ISAMP = range(5)
 BATCH = 8
-IA, LAST, RHO, HSTEP = range(4)
+IA, LAST, RHO, HSTEP, CEND = range(5)
 
 
 @njit(**_hot)
@@ -223,6 +275,7 @@ def sweep_start(mode, qs, fs, cb, rd, obj_step):
     fs[IA] = 0.0
     fs[LAST] = 0.0
     fs[RHO] = 0.0
+    fs[CEND] = -INF
     reset_bounds(cb)
     if mode == 1:
         h = INF
@@ -235,7 +288,7 @@ def sweep_start(mode, qs, fs, cb, rd, obj_step):
 @njit(**_hot, inline="always")
 def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs):
     """The exact ray/support test of Gaussian g (object-index-space ray); a hit gets a record in H
-    and its entry and exit events. Returns OVERFLOW when H is full."""
+    and an entry event. Returns OVERFLOW when H is full."""
     ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
     wx, wy, wz = (ox - g_rec[g, 0]) * ix, (oy - g_rec[g, 1]) * iy, (oz - g_rec[g, 2]) * iz
     vx, vy, vz = dx * ix, dy * iy, dz * iz
@@ -256,84 +309,94 @@ def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs)
     nh = qs[NH]
     if nh >= H.shape[0]:
         return OVERFLOW
+    sa = math.sqrt(0.5 * aa)
     H[nh, S] = s
     H[nh, E] = e
     H[nh, TS] = ts
-    H[nh, SA] = math.sqrt(0.5 * aa)
+    H[nh, SA] = sa
     H[nh, HQ] = 0.5 * qq
     H[nh, HA] = 0.5 * aa
     H[nh, PK] = g_rec[g, 6] * math.exp(-0.5 * qq)
     H[nh, C] = H[nh, PK] * math.sqrt(math.pi / (2.0 * aa))
+    H[nh, FA] = erf_fast(sa * (s - ts))
     hid[nh] = g
-    nq = heap_push(ev_t, ev_k, ev_h, qs[NQ], s, 2 * np.int64(g) + 1, nh)
-    qs[NQ] = heap_push(ev_t, ev_k, ev_h, nq, e, 2 * np.int64(g), nh)
+    qs[NQ] = heap_push(ev_t, ev_k, ev_h, qs[NQ], s, np.int64(g), nh)
     qs[NH] = nh + 1
     return 0
 
 
 @njit(**_hot)
-def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb, g_col,
-                    g_val, tau_max):
-    """Particles: consume the events before horizon (see module doc). Returns 1 once the ray is
-    opaque (early termination)."""
-    nq, nact, nm = qs[NQ], qs[NACT], qs[NM]
-    a, last_t, rho = fs[IA], fs[LAST], fs[RHO]
+def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb, g_col, g_val,
+                    tau_max):
+    """Particles: consume the entries before horizon, and close the cluster when it ends before
+    it (see module doc). Returns 1 once the ray is opaque (early termination)."""
+    nq, nm = qs[NQ], qs[NM]
+    a, last_t, rho, cend = fs[IA], fs[LAST], fs[RHO], fs[CEND]
     done = 0
     while nq > 0 and ev_t[0] < horizon:
         t = ev_t[0]
-        key = ev_k[0]
         h = ev_h[0]
         nq = heap_pop(ev_t, ev_k, ev_h, nq)
+        if t < last_t:
+            t = last_t  # a chord found late by rounding: starts where the sweep is
         if nm > 0:
-            if t < last_t:
-                t = last_t  # a chord found late by rounding: starts where the sweep is
-            if t > last_t and last_t > a:
+            if t >= cend:  # the cluster ended before this entry
+                close_interval(st, H, hid, mem, nm, a, cend, spread_of(cb), g_col, g_val, tau_max, tmp)
+                if st[0] < st[9]:
+                    done = 1
+                    break
+                nm = 0
+            elif t > last_t and last_t > a:
                 spread = spread_of(cb)
                 if rho * (t - a) * spread > tau_max:
                     close_interval(st, H, hid, mem, nm, a, last_t, spread, g_col, g_val, tau_max, tmp)
                     if st[0] < st[9]:
                         done = 1
                         break
-                    a = last_t  # the active set carries over as the new members
+                    a = last_t  # the members still open carry over
                     rho = 0.0
                     reset_bounds(cb)
-                    for k in range(nact):
-                        rho += add_member(H, hid, g_col, mem, k, cb, act[k])
-                    nm = nact
-        if key & 1:  # entry
-            pos[h] = nact
-            act[nact] = h
-            nact += 1
-            if nm == 0:
-                a = t
-            rho += add_member(H, hid, g_col, mem, nm, cb, h)
-            nm += 1
-        else:  # exit
-            k = pos[h]
-            lst = act[nact - 1]
-            act[k] = lst
-            pos[lst] = k
-            nact -= 1
-            if nact == 0:
-                close_interval(st, H, hid, mem, nm, a, t, spread_of(cb), g_col, g_val, tau_max, tmp)
-                if st[0] < st[9]:
-                    done = 1
-                    break
-                nm = 0
-                rho = 0.0
-                reset_bounds(cb)
+                    n = 0
+                    for k in range(nm):
+                        if H[mem[k], E] > a:
+                            rho += add_member(H, hid, g_col, mem, n, cb, mem[k])
+                            n += 1
+                    nm = n
+        if nm == 0:
+            a = t
+            rho = 0.0
+            cend = t
+            reset_bounds(cb)
+        rho += add_member(H, hid, g_col, mem, nm, cb, h)
+        nm += 1
+        cend = max(cend, H[h, E])
         last_t = t
-    qs[NQ], qs[NACT], qs[NM] = nq, nact, nm
-    fs[IA], fs[LAST], fs[RHO] = a, last_t, rho
+    if done == 0 and nm > 0 and cend <= horizon:  # no entry before its end is left to find
+        close_interval(st, H, hid, mem, nm, a, cend, spread_of(cb), g_col, g_val, tau_max, tmp)
+        done = 1 if st[0] < st[9] else 0
+        nm = 0
+        last_t = cend
+    qs[NQ], qs[NM] = nq, nm
+    fs[IA], fs[LAST], fs[RHO], fs[CEND] = a, last_t, rho, cend
     return done
 
 
+@njit(**_hot, inline="always")
+def _move_slot(H, act, k, j):
+    act[k] = act[j]
+    H[k, V] = H[j, V]
+    H[k, R] = H[j, R]
+    H[k, RC] = H[j, RC]
+    H[k, EX] = H[j, EX]
+
+
 @njit(**_hot)
-def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, g_rec, g_obj, ro, rd,
+def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj, ro, rd,
                 obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque."""
     nq, nact, isamp = qs[NQ], qs[NACT], qs[ISAMP]
     hstep = fs[HSTEP]
+    cend = fs[CEND]
     n_obj = ro.shape[0]
     done = 0
     while True:
@@ -341,31 +404,22 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, g_rec, 
         if not ti < horizon:
             break
         while nq > 0 and ev_t[0] <= ti:
-            key = ev_k[0]
             h = ev_h[0]
             nq = heap_pop(ev_t, ev_k, ev_h, nq)
-            # the active chords' V, R, RC live in H's rows by active slot (not by hit), so the
+            # the active chords' V, R, RC, EX live in H's rows by active slot (not by hit), so the
             # per-sample loop below reads them contiguously
-            if key & 1:
-                k = nact
-                pos[h] = k
-                act[k] = h
-                nact += 1
-                d = ti - H[h, TS]
-                ha = H[h, HA]
-                H[k, V] = g_rec[hid[h], 6] * math.exp(-(H[h, HQ] + ha * d * d))
-                H[k, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
-                H[k, RC] = math.exp(-2.0 * ha * hstep * hstep)
-            else:
-                k = pos[h]
-                last = nact - 1
-                lst = act[last]
-                act[k] = lst
-                pos[lst] = k
-                H[k, V] = H[last, V]
-                H[k, R] = H[last, R]
-                H[k, RC] = H[last, RC]
-                nact -= 1
+            k = nact
+            act[k] = h
+            nact += 1
+            d = ti - H[h, TS]
+            ha = H[h, HA]
+            H[k, V] = g_rec[hid[h], 6] * math.exp(-(H[h, HQ] + ha * d * d))
+            H[k, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
+            H[k, RC] = math.exp(-2.0 * ha * hstep * hstep)
+            H[k, EX] = H[h, E]
+            cend = max(cend, H[h, E])
+        if nact > 0 and ti >= cend:
+            nact = 0  # every active chord has ended
         if nact == 0:
             if nq == 0 or not ev_t[0] < horizon:
                 # nothing known ahead: resume at the first sample not before the horizon
@@ -374,24 +428,21 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, g_rec, 
                 break
             isamp = max(isamp + 1, int(math.ceil(ev_t[0] / hstep - 0.5)))
             continue
-        if n_obj == 1:
-            sv = 0.0
-            for k in range(nact):
-                sv += H[k, V]
-                H[k, V] *= H[k, R]
-                H[k, R] *= H[k, RC]
-            svals[0] = sv
-            sact[0] = 1
-        else:
-            for ob in range(n_obj):
-                svals[ob] = 0.0
-                sact[ob] = 0
-            for k in range(nact):
-                ob = g_obj[hid[act[k]]]
-                svals[ob] += H[k, V]
-                sact[ob] = 1
-                H[k, V] *= H[k, R]
-                H[k, R] *= H[k, RC]
+        for ob in range(n_obj):
+            svals[ob] = 0.0
+            sact[ob] = 0
+        k = 0
+        while k < nact:
+            if H[k, EX] <= ti:  # ended before this sample: drop it
+                nact -= 1
+                _move_slot(H, act, k, nact)
+                continue
+            ob = 0 if n_obj == 1 else g_obj[hid[act[k]]]
+            svals[ob] += H[k, V]
+            sact[ob] = 1
+            H[k, V] *= H[k, R]
+            H[k, R] *= H[k, RC]
+            k += 1
         st[7] += nact
         acc[:] = 0.0
         for ob in range(n_obj):
@@ -409,25 +460,26 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, g_rec, 
                 done = 1
                 break
     qs[NQ], qs[NACT], qs[ISAMP] = nq, nact, isamp
+    fs[CEND] = cend
     return done
 
 
 @njit(**_hot)
-def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb, g_col, g_val,
+def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp,
           acc):
     if mode == 0:
-        return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp,
-                               cb, g_col, g_val, tau_max)
-    return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, g_rec, g_obj, ro,
-                       rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
+        return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb, g_col,
+                               g_val, tau_max)
+    return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj, ro, rd,
+                       obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
 
 
 @njit(**_hot)
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H, hid,
-                ev_t, ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+                ev_t, ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
     """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order.
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
@@ -479,7 +531,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
         lastc[ob, 2] = cz
         # --- 2. sweep what is complete before the next cell's entry
         horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
-        if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb,
+        if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb,
                  g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                  tf_par, svals, sact, samp, acc):
             return 0
@@ -489,7 +541,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, t_items, t_box, t_lb, ro, rd, g_rec, g_col, g_val, g_obj,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
-                ev_k, ev_h, act, pos, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+                ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
     by the lower bound t_lb of each support's entry: see _cpu_tiles). Returns 0 or OVERFLOW."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
@@ -500,9 +552,10 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_box, t_lb, ro, rd, g_rec, g_c
             continue
         lbg = t_lb[g]
         # sweep in batches, after BATCH new hits, up to this support's earliest entry
-        if qs[NH] >= swept + BATCH and ev_t[0] < lbg:
+        if qs[NH] >= swept + BATCH and ((qs[NQ] > 0 and ev_t[0] < lbg)
+                                        or (qs[NM] > 0 and fs[CEND] <= lbg)):
             swept = qs[NH]
-            if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb,
+            if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb,
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                      tf_par, svals, sact, samp, acc):
                 return 0
@@ -510,7 +563,7 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_box, t_lb, ro, rd, g_rec, g_c
         if test_one(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2], g_rec, k2,
                     H, hid, ev_t, ev_k, ev_h, qs) != 0:
             return OVERFLOW
-    sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, pos, mem, tmp, cb, g_col, g_val,
+    sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact,
           samp, acc)
     return 0

@@ -22,6 +22,47 @@ _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 _hot = dict(_jit, _nrt=False)
 
 
+def _erf_table(per=16, deg=8, umax=6.0):
+    """Taylor coefficients of erf about the midpoint of each 1/per-wide cell of [0, umax), in the
+    cell's local coordinate d in [-1/2, 1/2]: erf^(k)(m) = 2/sqrt(pi) (-1)^(k-1) H_{k-1}(m) e^{-m^2}
+    (physicists' Hermite polynomials, by their recurrence). Degree 8 at 1/16: within 3.3e-16 of
+    libm's erf (tests/test_render_particles), about 4x faster, and erf(6) rounds to 1 in float64."""
+    n = int(umax * per)
+    tab = np.zeros((n, deg + 1))
+    for i in range(n):
+        m = (i + 0.5) / per
+        tab[i, 0] = math.erf(m)
+        h0, h1 = 1.0, 2.0 * m  # H_0, H_1
+        for k in range(1, deg + 1):
+            hk = h0 if k == 1 else h1
+            tab[i, k] = TWO_OVER_SQRT_PI * (-1) ** (k - 1) * hk * math.exp(-m * m) / math.factorial(k) / per ** k
+            if k >= 2:
+                h0, h1 = h1, 2.0 * m * h1 - 2.0 * (k - 1) * h0
+    return tab
+
+
+ERF_PER = 16.0
+ERF_UMAX = 6.0
+ERF_TAB = _erf_table()
+
+
+@njit(**_hot)
+def erf_fast(u):
+    """erf(u) from ERF_TAB (see _erf_table); NaN stays NaN."""
+    x = abs(u)
+    if not x < ERF_UMAX:
+        return math.copysign(1.0, u) if x == x else x
+    f = x * ERF_PER
+    i = int(f)
+    d = f - i - 0.5
+    c = ERF_TAB[i]
+    d2 = d * d
+    d4 = d2 * d2
+    # Estrin's scheme: a shorter dependency chain than Horner
+    p = (c[0] + c[1] * d + d2 * (c[2] + c[3] * d)
+         + d4 * (c[4] + c[5] * d + d2 * (c[6] + c[7] * d) + d4 * c[8]))
+    return math.copysign(p, u)
+
 
 @njit(**_hot)
 def erf_diff(u0, u1):
