@@ -260,7 +260,7 @@ def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node
                   cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                   g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
                   obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-                  t_box, t_lb, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb, iv_obj,
+                  t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb, iv_obj,
                   iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp,
                   acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp):
     """Pixels i0.. of row j (no allocation, no reference counting: see _cpu_math._hot). Returns
@@ -329,7 +329,7 @@ def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node
                          obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc)
         else:
             if tiled:
-                rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_box, t_lb,
+                rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
                                  ro, rd, g_rec, g_col, g_val, g_obj, k2, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
                                  ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
@@ -361,7 +361,7 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-               t_box, t_lb, out_rgba, out_depth, out_value, out_segs):
+               t_mask, out_rgba, out_depth, out_value, out_segs):
     """One image row: the scratch arrays, then render_pixels (grown and resumed when a ray
     needs more hit rows). Kept out of render_rows' prange body on purpose: per-pixel calls made
     from inside a parfor body with many array arguments measured ~18 us each here."""
@@ -384,7 +384,7 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
     acc = np.empty(6)  # one sample's sums (add_sample)
     cb = np.empty(6)  # particles: colour bounds of an interval's members
     st = np.empty(12)
-    qs = np.empty(5, np.int64)  # sweep state (_cpu_gauss)
+    qs = np.empty(6, np.int64)  # sweep state (_cpu_gauss)
     fs = np.empty(5)
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
@@ -396,7 +396,7 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
                           g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
                           bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par,
-                          settings, max_walk, t_start, t_items, t_box, t_lb, out_rgba, out_depth,
+                          settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
                           Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp)
@@ -410,8 +410,8 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
 def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items, t_box,
-                t_lb, row_order, out_rgba, out_depth, out_value, out_segs):
+                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items, t_mask,
+                row_order, out_rgba, out_depth, out_value, out_segs):
     """Render rows [row0, row1) into out_* (indexed from 0 = row0), in the order row_order: the
     threads get contiguous blocks of it, so spreading each block over the image balances them
     (an object in the top half would otherwise all go to one thread).
@@ -421,5 +421,5 @@ def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_
         render_row(jr, row0 + jr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                    cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
                    g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step,
-                   tf_lut, tf_par, settings, max_walk, t_start, t_items, t_box, t_lb, out_rgba,
+                   tf_lut, tf_par, settings, max_walk, t_start, t_items, t_mask, out_rgba,
                    out_depth, out_value, out_segs)

@@ -10,7 +10,7 @@ so it is skipped there. A chord enters at a point inside its box, hence inside a
 visits at or before that time: once the cells entered before t are visited, every chord entering
 before t is known, and the events before t can be swept.
 
-Only entries are queued (a heap ordered by (t, id)); exits need no events. Particles: chords
+Only entries are queued (sorted by (t, id)); exits need no events. Particles: chords
 overlapping one another form a cluster that ends at the latest exit of its members, so the next
 entry at or after that ends it (non-overlapping supports are exact). Within a cluster an interval
 closes at an entry when an upper bound of its optical depth x colour spread (sum of the members'
@@ -41,6 +41,7 @@ from ._cpu_math import (
     erf_span,
     sample_color,
 )
+from ._cpu_tiles import TILE
 
 # hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
 # sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA and at the
@@ -48,6 +49,8 @@ from ._cpu_math import (
 S, E, TS, SA, C, HQ, HA, PK, FA, FB = range(10)
 V, R, RC, EX = FA, FB, FA + 2, FA + 3
 NF = 12
+# g_rec columns: centre (3), 1/sigma (3), extinction weight, and (tile lists) the entry bound
+LB = 7
 OVERFLOW = -1
 
 
@@ -64,41 +67,18 @@ def _put(qt, qk, qh, j, t, key, h):
 
 
 @njit(**_hot, inline="always")
-def heap_push(qt, qk, qh, n, t, key, h):
-    """Push onto the binary min-heap qt/qk/qh[:n] ordered by (t, key); the key (the Gaussian id) is
-    unique per ray, so the order is total and does not depend on discovery order. A heap, not a
-    sorted array: dense volumes keep ~100 entries pending. Returns the new size."""
+def queue_insert(qt, qk, qh, q0, n, t, key, h):
+    """Insert into the queue qt/qk/qh[q0:n], kept sorted by (t, key), from its back; the key (the
+    Gaussian id) is unique per ray, so the order is total and does not depend on discovery order.
+    Entries arrive nearly in order (tile lists are sorted by a lower bound of the entry time, the
+    walk goes front to back), so few move: cheaper than a heap, and popping is q0 += 1. The queue
+    only grows at its back, so n <= the hits so far. Returns n + 1."""
     j = n
-    while j > 0:
-        p = (j - 1) >> 1
-        if not _before(t, key, qt[p], qk[p]):
-            break
-        _put(qt, qk, qh, j, qt[p], qk[p], qh[p])
-        j = p
+    while j > q0 and _before(t, key, qt[j - 1], qk[j - 1]):
+        _put(qt, qk, qh, j, qt[j - 1], qk[j - 1], qh[j - 1])
+        j -= 1
     _put(qt, qk, qh, j, t, key, h)
     return n + 1
-
-
-@njit(**_hot, inline="always")
-def heap_pop(qt, qk, qh, n):
-    """Drop the root (the caller has read it); returns the new size."""
-    n -= 1
-    t = qt[n]
-    key = qk[n]
-    h = qh[n]
-    j = 0
-    while True:
-        c = 2 * j + 1
-        if c >= n:
-            break
-        if c + 1 < n and _before(qt[c + 1], qk[c + 1], qt[c], qk[c]):
-            c += 1
-        if not _before(qt[c], qk[c], t, key):
-            break
-        _put(qt, qk, qh, j, qt[c], qk[c], qh[c])
-        j = c
-    _put(qt, qk, qh, j, t, key, h)
-    return n
 
 
 @njit(**_hot, inline="always")
@@ -261,7 +241,7 @@ def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp
 
 
 # per-ray sweep state: qs (int64) and fs (float64) columns
-NQ, NACT, NM, NH, ISAMP = range(5)
+NQ, NACT, NM, NH, ISAMP, QH = range(6)  # queue: [QH, NQ)
 BATCH = 8
 IA, LAST, RHO, HSTEP, CEND = range(5)
 
@@ -270,7 +250,7 @@ IA, LAST, RHO, HSTEP, CEND = range(5)
 def sweep_start(mode, qs, fs, cb, rd, obj_step):
     """Empty queue, no hits; field samples at t_i = (i + 1/2) h from the ray origin, h the finest
     object step along this ray."""
-    for c in range(5):
+    for c in range(6):
         qs[c] = 0
     fs[IA] = 0.0
     fs[LAST] = 0.0
@@ -320,7 +300,7 @@ def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs)
     H[nh, C] = H[nh, PK] * math.sqrt(math.pi / (2.0 * aa))
     H[nh, FA] = erf_fast(sa * (s - ts))
     hid[nh] = g
-    qs[NQ] = heap_push(ev_t, ev_k, ev_h, qs[NQ], s, np.int64(g), nh)
+    qs[NQ] = queue_insert(ev_t, ev_k, ev_h, qs[QH], qs[NQ], s, np.int64(g), nh)
     qs[NH] = nh + 1
     return 0
 
@@ -330,13 +310,13 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb,
                     tau_max):
     """Particles: consume the entries before horizon, and close the cluster when it ends before
     it (see module doc). Returns 1 once the ray is opaque (early termination)."""
-    nq, nm = qs[NQ], qs[NM]
+    q0, nq, nm = qs[QH], qs[NQ], qs[NM]
     a, last_t, rho, cend = fs[IA], fs[LAST], fs[RHO], fs[CEND]
     done = 0
-    while nq > 0 and ev_t[0] < horizon:
-        t = ev_t[0]
-        h = ev_h[0]
-        nq = heap_pop(ev_t, ev_k, ev_h, nq)
+    while q0 < nq and ev_t[q0] < horizon:
+        t = ev_t[q0]
+        h = ev_h[q0]
+        q0 += 1
         if t < last_t:
             t = last_t  # a chord found late by rounding: starts where the sweep is
         if nm > 0:
@@ -376,7 +356,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb,
         done = 1 if st[0] < st[9] else 0
         nm = 0
         last_t = cend
-    qs[NQ], qs[NM] = nq, nm
+    qs[QH], qs[NM] = q0, nm
     fs[IA], fs[LAST], fs[RHO], fs[CEND] = a, last_t, rho, cend
     return done
 
@@ -394,7 +374,7 @@ def _move_slot(H, act, k, j):
 def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj, ro, rd,
                 obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque."""
-    nq, nact, isamp = qs[NQ], qs[NACT], qs[ISAMP]
+    q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
     hstep = fs[HSTEP]
     cend = fs[CEND]
     n_obj = ro.shape[0]
@@ -403,9 +383,9 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj
         ti = (isamp + 0.5) * hstep
         if not ti < horizon:
             break
-        while nq > 0 and ev_t[0] <= ti:
-            h = ev_h[0]
-            nq = heap_pop(ev_t, ev_k, ev_h, nq)
+        while q0 < nq and ev_t[q0] <= ti:
+            h = ev_h[q0]
+            q0 += 1
             # the active chords' V, R, RC, EX live in H's rows by active slot (not by hit), so the
             # per-sample loop below reads them contiguously
             k = nact
@@ -421,12 +401,12 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj
         if nact > 0 and ti >= cend:
             nact = 0  # every active chord has ended
         if nact == 0:
-            if nq == 0 or not ev_t[0] < horizon:
+            if q0 == nq or not ev_t[q0] < horizon:
                 # nothing known ahead: resume at the first sample not before the horizon
                 if horizon < INF:
                     isamp = max(isamp, int(math.ceil(horizon / hstep - 0.5)))
                 break
-            isamp = max(isamp + 1, int(math.ceil(ev_t[0] / hstep - 0.5)))
+            isamp = max(isamp + 1, int(math.ceil(ev_t[q0] / hstep - 0.5)))
             continue
         for ob in range(n_obj):
             svals[ob] = 0.0
@@ -459,7 +439,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj
             if st[0] < st[9]:
                 done = 1
                 break
-    qs[NQ], qs[NACT], qs[ISAMP] = nq, nact, isamp
+    qs[QH], qs[NACT], qs[ISAMP] = q0, nact, isamp
     fs[CEND] = cend
     return done
 
@@ -539,20 +519,22 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
 
 
 @njit(**_hot)
-def trace_tiles(mode, st, i, j, t0, t1, t_items, t_box, t_lb, ro, rd, g_rec, g_col, g_val, g_obj,
+def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
                 ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
-    by the lower bound t_lb of each support's entry: see _cpu_tiles). Returns 0 or OVERFLOW."""
+    by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles). Returns 0 or
+    OVERFLOW."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
     swept = 0
+    bit = (j % TILE) * TILE + i % TILE
     for q in range(t0, t1):
-        g = t_items[q]
-        if i < t_box[g, 0] or i > t_box[g, 1] or j < t_box[g, 2] or j > t_box[g, 3]:
+        if not (t_mask[q] >> bit) & 1:
             continue
-        lbg = t_lb[g]
+        g = t_items[q]
+        lbg = g_rec[g, LB]
         # sweep in batches, after BATCH new hits, up to this support's earliest entry
-        if qs[NH] >= swept + BATCH and ((qs[NQ] > 0 and ev_t[0] < lbg)
+        if qs[NH] >= swept + BATCH and ((qs[QH] < qs[NQ] and ev_t[qs[QH]] < lbg)
                                         or (qs[NM] > 0 and fs[CEND] <= lbg)):
             swept = qs[NH]
             if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb,

@@ -1,7 +1,9 @@
 """Screen tiles for the particles and field modes: per frame, each visible Gaussian's support
 ellipsoid is projected to the image (its exact bounding rectangle in pixels) and listed in the
 TILE x TILE pixel tiles it covers, each list ordered by a lower bound of the ray distance at which
-any ray can enter the support. A pixel then tests only its tile's Gaussians, front to back: once
+any ray can enter the support. Each entry carries the 64-bit mask of the tile's pixels inside the
+rectangle, so a pixel scans its list sequentially and touches a Gaussian's data only when its
+bit is set. A pixel then tests only its tile's Gaussians, front to back: once
 the Gaussians with lower bound below t are tested, every chord entering before t is known, so the
 event sweep can run up to there (the same completeness rule the leaf walk gives).
 
@@ -120,8 +122,11 @@ def tile_counts(box, ntx, nty):
 
 @njit(parallel=True, **_jit)
 def tile_fill(box, lb, start, ntx):
-    """Tile lists (Gaussian ids, int32), each sorted by (lb, id)."""
+    """Tile lists, each sorted by (lb, id): Gaussian ids (int32) and per entry the mask of the
+    tile's pixels in its rectangle (int64, bit TILE * (j % TILE) + i % TILE for pixel column i,
+    row j)."""
     items = np.empty(start[-1], np.int32)
+    masks = np.empty(start[-1], np.int64)
     fill = start[:-1].copy()
     for g in range(box.shape[0]):
         if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
@@ -137,4 +142,15 @@ def tile_fill(box, lb, start, ntx):
         if b - a > 1:
             order = np.argsort(lb[items[a:b]], kind="mergesort")  # stable: ties keep id order
             items[a:b] = items[a:b][order]
-    return items
+        x0 = (t % ntx) * TILE
+        y0 = (t // ntx) * TILE
+        for q in range(a, b):
+            g = items[q]
+            i0 = max(box[g, 0] - x0, 0)
+            i1 = min(box[g, 1] - x0, TILE - 1)
+            row = (np.int64(1) << (i1 + 1)) - (np.int64(1) << i0)  # bits i0..i1
+            m = np.int64(0)
+            for y in range(max(box[g, 2] - y0, 0), min(box[g, 3] - y0, TILE - 1) + 1):
+                m |= row << (TILE * y)
+            masks[q] = m
+    return items, masks

@@ -22,7 +22,7 @@ from .scene import RenderScene, same_geometry
 from .transfer import LUT_SIZE, TransferFunction
 
 MODE_IDS = {"particles": 0, "field": 1, "paper": 2, "reference": 3}
-MAX_TILE_ENTRIES = 32_000_000  # screen-tile list entries per frame (int32: 128 MB)
+MAX_TILE_ENTRIES = 24_000_000  # screen-tile list entries per frame (id + pixel mask: 288 MB)
 
 
 class Device(ABC):
@@ -214,11 +214,11 @@ class CPUDevice(Device):
         return skip
 
     def _screen_tiles(self, mode, scene, camera, g_w):
-        """Per-frame screen-tile lists for the particles and field modes (_cpu_tiles), or empty
-        arrays (the kernels then walk the leaf hierarchy) when switched off or when the lists would
-        pass MAX_TILE_ENTRIES (a camera inside a dense volume puts every support near the eye
-        plane in every tile)."""
-        none = (np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros((1, 4), np.int32), np.zeros(1))
+        """Per-frame screen-tile lists for the particles and field modes (_cpu_tiles): starts,
+        ids, pixel masks and each Gaussian's entry bound; or empty arrays (the kernels then walk
+        the leaf hierarchy) when switched off or when the lists would pass MAX_TILE_ENTRIES (a
+        camera inside a dense volume puts every support near the eye plane in every tile)."""
+        none = (np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros(1, np.int64), None)
         A = self.gacc
         m = A.g_mu.shape[0]
         if not self.screen_tiles or m == 0 or mode > 1:
@@ -244,7 +244,8 @@ class CPUDevice(Device):
         np.cumsum(start, out=start)
         if start[-1] > MAX_TILE_ENTRIES:
             return none
-        return start, kt.tile_fill(box, lb, start, ntx), box, lb
+        items, masks = kt.tile_fill(box, lb, start, ntx)
+        return start, items, masks, lb
 
     def render(self, scene, camera, tf, *, rows=None, progress=None, cancel=None):
         import numba
@@ -283,14 +284,17 @@ class CPUDevice(Device):
                 g_col = np.zeros((1, 3))
                 cell_items = face_items = np.zeros(1, np.int32)
                 g_clo = g_chi = np.zeros((1, 3), np.int64)
-            # what the per-ray Gaussian test reads, one 64-byte row each: centre, 1/sigma, weight
+            # what the per-ray Gaussian test reads, one 64-byte row each: centre, 1/sigma, weight,
+            # the entry bound (tile lists)
             g_rec = np.zeros((g_mu.shape[0], 8))
             g_rec[:, 0:3], g_rec[:, 3:6], g_rec[:, 6] = g_mu, g_inv, g_w
             g_sph, obj_ref = self.gacc.g_sph, self.gacc.obj_ref
             if g_sph.shape[0] == 0:
                 g_sph = np.zeros((1, 4), np.float32)
         cell_skip = self._cell_skip(mode, acc, g_w, tfs, obj_tf, obj_kind)
-        t_start, t_items, t_box, t_lb = self._screen_tiles(mode, scene, camera, g_w)
+        t_start, t_items, t_mask, t_lb = self._screen_tiles(mode, scene, camera, g_w)
+        if t_lb is not None:
+            g_rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
         bg = np.asarray(scene.background, np.float64).ravel()
         bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
         settings = np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
@@ -325,7 +329,7 @@ class CPUDevice(Device):
                                     g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph,
                                     obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf,
                                     obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
-                                    t_start, t_items, t_box, t_lb, _spread_rows(b - a), o_rgba,
+                                    t_start, t_items, t_mask, _spread_rows(b - a), o_rgba,
                                     o_depth, o_value, segs[a:b])
                 rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
                 a = b
