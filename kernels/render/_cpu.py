@@ -256,15 +256,16 @@ def ray_scratch(cap):
 
 
 @njit(**_hot)
-def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
+def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                   cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                   g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
                   obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
                   t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb, iv_obj,
                   iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp,
                   acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp):
-    """Pixels i0.. of row j (no allocation, no reference counting: see _cpu_math._hot). Returns
-    -1, or the pixel whose ray needs more hit rows than Hs has."""
+    """Pixels p0.. of the band of nr output rows from jr0 (image row j0; no allocation, no reference counting:
+    see _cpu_math._hot), tile by tile (see render_band). Returns -1, or the pixel whose ray needs
+    more hit rows than Hs has."""
     W = int(cam[1])
     Hh = int(cam[2])
     ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
@@ -277,9 +278,14 @@ def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node
     maxd = settings[8]
     tiled = mode <= 1 and t_start.shape[0] > 1
     ntx = (W + TILE - 1) // TILE
-    segs = 0.0
-    py = ((j + 0.5) / Hh - 0.5) * ey + offy
-    for i in range(i0, W):
+    for p in range(p0, nr * W):
+        tx = p // (nr * TILE)
+        tw = min(TILE, W - tx * TILE)
+        q = p - tx * nr * TILE
+        jr = jr0 + q // tw
+        j = j0 + q // tw
+        i = tx * TILE + q % tw
+        py = ((j + 0.5) / Hh - 0.5) * ey + offy
         px = ((i + 0.5) / W - 0.5) * ex + offx
         if cam[0] < 0.5:
             dcx = cam[7] * px + cam[8] * py - cam[9]
@@ -340,8 +346,7 @@ def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node
                                 obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
                                 ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
             if rc == OVERFLOW:
-                out_segs[jr] += segs
-                return i
+                return p
         T = st[0]
         out_rgba[jr, i, 0] = st[1] + T * bgr * bga
         out_rgba[jr, i, 1] = st[2] + T * bgg * bga
@@ -349,22 +354,22 @@ def render_pixels(i0, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node
         out_rgba[jr, i, 3] = (1.0 - T) + T * bga
         out_depth[jr, i] = st[4]
         out_value[jr, i] = st[5] / st[6] if st[6] > 0.0 else 0.0
-        segs += st[7]
-    out_segs[jr] += segs
+        out_segs[jr] += st[7]
     return -1
 
 
-
-
 @njit(**_jit)
-def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
-               cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
-               g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-               obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-               t_mask, out_rgba, out_depth, out_value, out_segs):
-    """One image row: the scratch arrays, then render_pixels (grown and resumed when a ray
-    needs more hit rows). Kept out of render_rows' prange body on purpose: per-pixel calls made
-    from inside a parfor body with many array arguments measured ~18 us each here."""
+def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
+                cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
+                g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
+                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
+                t_mask, out_rgba, out_depth, out_value, out_segs):
+    """nr image rows from j0 (output rows from jr0) within one row of screen tiles, one tile after
+    the other, so a tile's candidate list and the Gaussians it names stay in cache for its pixels
+    (row by row, a 512-wide image cycles through 64 tiles' lists). The scratch arrays, then
+    render_pixels (grown and resumed when a ray needs more hit rows). Kept out of render_rows'
+    prange body on purpose: per-pixel calls made from inside a parfor body with many array
+    arguments measured ~18 us each here."""
     n_obj = w2i.shape[0]
     iv_ta = np.empty(max_walk)
     iv_tb = np.empty(max_walk)
@@ -389,10 +394,10 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
     Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp = ray_scratch(cap)
-    out_segs[jr] = 0.0
-    i = 0
+    out_segs[jr0:jr0 + nr] = 0.0
+    p = 0
     while True:
-        i = render_pixels(i, jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
+        p = render_pixels(p, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
                           g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
                           bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par,
@@ -400,9 +405,9 @@ def render_row(jr, j, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
                           Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp)
-        if i < 0:
+        if p < 0:
             return
-        cap *= 2  # more Gaussians on ray i than this row's scratch holds: grow, redo it
+        cap *= 2  # more Gaussians on ray p than this band's scratch holds: grow, redo it
         Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp = ray_scratch(cap)
 
 
@@ -411,15 +416,26 @@ def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
                 obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items, t_mask,
-                row_order, out_rgba, out_depth, out_value, out_segs):
-    """Render rows [row0, row1) into out_* (indexed from 0 = row0), in the order row_order: the
-    threads get contiguous blocks of it, so spreading each block over the image balances them
-    (an object in the top half would otherwise all go to one thread).
+                out_rgba, out_depth, out_value, out_segs):
+    """Render rows [row0, row1) into out_* (indexed from 0 = row0) in bands of the screen tiles'
+    rows (render_band), spread over the image in the order 0, 16, 32, ..., 1, 17, ...: the
+    threads get contiguous blocks of it, so each samples the whole image (an object in the top
+    half would otherwise all go to one thread).
     settings: [T_min, tau_max, k, bg_r, bg_g, bg_b, bg_a, paper_steps, paper_max_depth]."""
-    for q in prange(row1 - row0):
-        jr = row_order[q]
-        render_row(jr, row0 + jr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
-                   cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
-                   g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step,
-                   tf_lut, tf_par, settings, max_walk, t_start, t_items, t_mask, out_rgba,
-                   out_depth, out_value, out_segs)
+    b0 = row0 // TILE
+    nb = (row1 - 1) // TILE - b0 + 1 if row1 > row0 else 0
+    order = np.empty(nb, np.int64)
+    n = 0
+    for r in range(16):
+        for b in range(r, nb, 16):
+            order[n] = b
+            n += 1
+    for q in prange(nb):
+        band = b0 + order[q]
+        j0 = max(row0, band * TILE)
+        j1 = min(row1, (band + 1) * TILE)
+        render_band(j0 - row0, j0, j1 - j0, mode, cam, w2i, nmin, ndims, noff, node_table,
+                    node_cells, cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
+                    g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
+                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings,
+                    max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs)

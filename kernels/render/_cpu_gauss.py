@@ -44,11 +44,14 @@ from ._cpu_math import (
 from ._cpu_tiles import TILE
 
 # hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
-# sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA and at the
-# interval's end FB; field keeps V, R, RC, EX (value, ratios, exit) by active slot (sweep_field)
-S, E, TS, SA, C, HQ, HA, PK, FA, FB = range(10)
-V, R, RC, EX = FA, FB, FA + 2, FA + 3
-NF = 12
+# sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA (and a
+# running one, FB), colour, value (0 when NaN) and value weight (0 when NaN); field keeps V, R,
+# RC, EX (value, ratios, exit) by active slot (sweep_field)
+S, E, TS, SA, C, HQ, HA, PK, FA, FB, CR, CG, CB, VAL, VW = range(15)
+V, R, RC, EX = range(8, 12)
+NF = 16
+SQRT_HALF = math.sqrt(0.5)
+SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
 # g_rec columns: centre (3), 1/sigma (3), extinction weight, and (tile lists) the entry bound
 LB = 7
 OVERFLOW = -1
@@ -95,15 +98,11 @@ def entry_face(dx, dy, dz):
 
 
 @njit(**_hot, inline="always")
-def add_member(H, hid, g_col, mem, nm, cb, h):
-    """Make hit h member nm of the open interval; widen the colour bounds cb = (lo rgb, hi rgb).
-    Returns its peak density (the interval's bound term)."""
-    mem[nm] = h
-    g = hid[h]
+def widen(cb, H, h):
+    """Widen the colour bounds cb = (lo rgb, hi rgb) by hit h's colour."""
     for c in range(3):
-        cb[c] = min(cb[c], g_col[g, c])
-        cb[3 + c] = max(cb[3 + c], g_col[g, c])
-    return H[h, PK]
+        cb[c] = min(cb[c], H[h, CR + c])
+        cb[3 + c] = max(cb[3 + c], H[h, CR + c])
 
 
 @njit(**_hot, inline="always")
@@ -144,7 +143,7 @@ def chord_tau(H, h, a, b):
 
 
 @njit(**_hot)
-def median_depth(st, H, mem, nm, a, b, tsum):
+def median_depth(st, H, h, a, b, tsum):
     """Depth pass for a one-Gaussian interval: where T crosses 0.5, by bisection on the closed form."""
     T = st[0]
     if st[4] != BG_DEPTH or T * math.exp(-tsum) > 0.5:
@@ -154,95 +153,84 @@ def median_depth(st, H, mem, nm, a, b, tsum):
     hi = b
     for _ in range(40):
         mid = 0.5 * (lo + hi)
-        acc = 0.0
-        for k in range(nm):
-            acc += chord_tau(H, mem[k], a, mid)
-        if acc < target:
+        if chord_tau(H, h, a, mid) < target:
             lo = mid
         else:
             hi = mid
     st[4] = 0.5 * (lo + hi)
 
 
-@njit(**_hot)
-def advance_taus(H, mem, nm, a, b, last, tmp):
-    """Each member's optical depth over [a, b] into tmp (its erf at b becomes its cached FA; at
-    the interval's end, last, it is already in FB); returns their sum."""
-    tsum = 0.0
-    for k in range(nm):
-        h = mem[k]
-        if H[h, E] <= a or H[h, S] >= b:  # no part of its chord here: FA stays
-            tmp[k] = 0.0
-            continue
-        fb = H[h, FB] if last else erf_at(H, h, b)
-        tk = H[h, C] * (fb - H[h, FA])
-        H[h, FA] = fb
-        tmp[k] = tk
-        tsum += tk
-    return tsum
+@njit(**_hot, inline="always")
+def composite_mix(st, tsum, r, g, b, vs, vw, a, c):
+    """Composite a tau-weighted colour and value sum over [a, c]."""
+    composite(st, tsum, r / tsum, g / tsum, b / tsum, vs / vw if vw > 0 else np.nan, a, c)
 
 
 @njit(**_hot)
-def close_interval(st, H, hid, mem, nm, a, b, spread, g_col, g_val, tau_max, tmp):
-    """Composite the members' optical depth over [a, b] (see module doc); leaves each member's
-    FA at b."""
-    if not b > a or nm == 0:
-        return
-    tsum = 0.0
+def close_interval(st, H, mem, nm, a, b, spread, tau_max, keep, cb):
+    """Composite the members' optical depth over [a, b] (see module doc). Moves the members still
+    open at b to keep[:n] with their colour bounds in cb; returns n and their peak-density sum."""
+    tsum = r = gg = bb = vs = vw = 0.0
+    n = 0
+    rho = 0.0
+    reset_bounds(cb)
     for k in range(nm):
         h = mem[k]
         fb = erf_at(H, h, b)
-        H[h, FB] = fb
         tk = H[h, C] * (fb - H[h, FA])
-        tmp[k] = tk
+        H[h, FB] = H[h, FA]  # the erf at a, for the subdivisions
+        H[h, FA] = fb
         tsum += tk
+        r += tk * H[h, CR]
+        gg += tk * H[h, CG]
+        bb += tk * H[h, CB]
+        vs += tk * H[h, VAL]
+        vw += tk * H[h, VW]
+        if H[h, E] > b:
+            keep[n] = h
+            n += 1
+            rho += H[h, PK]
+            widen(cb, H, h)
     st[7] += nm
-    if tsum <= 0.0:
-        for k in range(nm):
-            H[mem[k], FA] = H[mem[k], FB]
-        return
+    if not tsum > 0.0:
+        return n, rho
     nsub = 1
     if nm > 1 and tau_max > 0.0 and tsum * spread > tau_max:
         nsub = min(int(math.ceil(tsum * spread / tau_max)), 1024)
-    else:
+    if nsub == 1:
         if nm == 1:
-            median_depth(st, H, mem, 1, a, b, tsum)
-        for k in range(nm):
-            H[mem[k], FA] = H[mem[k], FB]
+            median_depth(st, H, mem[0], a, b, tsum)
+        composite_mix(st, tsum, r, gg, bb, vs, vw, a, b)
+        return n, rho
     for s in range(nsub):
-        if nsub > 1:
-            a0 = a + (b - a) * s / nsub
-            a1 = a + (b - a) * (s + 1) / nsub if s + 1 < nsub else b
-            tsum = advance_taus(H, mem, nm, a0, a1, s + 1 == nsub, tmp)
-            st[7] += nm
-        else:
-            a0, a1 = a, b
-        if tsum <= 0.0:
-            continue
-        r = 0.0
-        gg = 0.0
-        bb = 0.0
-        vs = 0.0
-        vw = 0.0
+        # the same sums over each part, each member's erf carried part to part in FB
+        a0 = a + (b - a) * s / nsub
+        a1 = a + (b - a) * (s + 1) / nsub if s + 1 < nsub else b
+        tsum = r = gg = bb = vs = vw = 0.0
         for k in range(nm):
-            w = tmp[k]
-            if w == 0.0:
+            h = mem[k]
+            if H[h, E] <= a0 or H[h, S] >= a1:
                 continue
-            g = hid[mem[k]]
-            r += w * g_col[g, 0]
-            gg += w * g_col[g, 1]
-            bb += w * g_col[g, 2]
-            if g_val[g] == g_val[g]:
-                vs += w * g_val[g]
-                vw += w
-        composite(st, tsum, r / tsum, gg / tsum, bb / tsum, vs / vw if vw > 0 else np.nan, a0, a1)
-        if st[0] < st[9]:
-            return
+            f1 = H[h, FA] if s + 1 == nsub else erf_at(H, h, a1)
+            tk = H[h, C] * (f1 - H[h, FB])
+            H[h, FB] = f1
+            tsum += tk
+            r += tk * H[h, CR]
+            gg += tk * H[h, CG]
+            bb += tk * H[h, CB]
+            vs += tk * H[h, VAL]
+            vw += tk * H[h, VW]
+        st[7] += nm
+        if tsum > 0.0:
+            composite_mix(st, tsum, r, gg, bb, vs, vw, a0, a1)
+            if st[0] < st[9]:
+                break
+    return n, rho
 
 
 # per-ray sweep state: qs (int64) and fs (float64) columns
 NQ, NACT, NM, NH, ISAMP, QH = range(6)  # queue: [QH, NQ)
-BATCH = 8
+BATCH = 32
 IA, LAST, RHO, HSTEP, CEND = range(5)
 
 
@@ -274,12 +262,14 @@ def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs)
     vx, vy, vz = dx * ix, dy * iy, dz * iz
     aa = vx * vx + vy * vy + vz * vz
     bb = wx * vx + wy * vy + wz * vz
-    ts = -bb / aa
+    ia = 1.0 / aa
+    ts = -bb * ia
     px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
     qq = px * px + py * py + pz * pz
     if qq >= k2:
         return 0
-    hw = math.sqrt((k2 - qq) / aa)
+    ra = math.sqrt(ia)  # 1 / |d'|: one division and two roots in all
+    hw = math.sqrt(k2 - qq) * ra
     s = ts - hw
     e = ts + hw
     if s < 0.0:
@@ -289,16 +279,15 @@ def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs)
     nh = qs[NH]
     if nh >= H.shape[0]:
         return OVERFLOW
-    sa = math.sqrt(0.5 * aa)
     H[nh, S] = s
     H[nh, E] = e
     H[nh, TS] = ts
-    H[nh, SA] = sa
+    H[nh, SA] = SQRT_HALF * aa * ra
     H[nh, HQ] = 0.5 * qq
     H[nh, HA] = 0.5 * aa
-    H[nh, PK] = g_rec[g, 6] * math.exp(-0.5 * qq)
-    H[nh, C] = H[nh, PK] * math.sqrt(math.pi / (2.0 * aa))
-    H[nh, FA] = erf_fast(sa * (s - ts))
+    pk = g_rec[g, 6] * math.exp(-0.5 * qq)
+    H[nh, PK] = pk
+    H[nh, C] = pk * SQRT_HALF_PI * ra
     hid[nh] = g
     qs[NQ] = queue_insert(ev_t, ev_k, ev_h, qs[QH], qs[NQ], s, np.int64(g), nh)
     qs[NH] = nh + 1
@@ -306,8 +295,7 @@ def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs)
 
 
 @njit(**_hot)
-def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb, g_col, g_val,
-                    tau_max):
+def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_col, g_val, tau_max):
     """Particles: consume the entries before horizon, and close the cluster when it ends before
     it (see module doc). Returns 1 once the ray is opaque (early termination)."""
     q0, nq, nm = qs[QH], qs[NQ], qs[NM]
@@ -321,7 +309,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb,
             t = last_t  # a chord found late by rounding: starts where the sweep is
         if nm > 0:
             if t >= cend:  # the cluster ended before this entry
-                close_interval(st, H, hid, mem, nm, a, cend, spread_of(cb), g_col, g_val, tau_max, tmp)
+                close_interval(st, H, mem, nm, a, cend, spread_of(cb), tau_max, keep, cb)
                 if st[0] < st[9]:
                     done = 1
                     break
@@ -329,30 +317,35 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb,
             elif t > last_t and last_t > a:
                 spread = spread_of(cb)
                 if rho * (t - a) * spread > tau_max:
-                    close_interval(st, H, hid, mem, nm, a, last_t, spread, g_col, g_val, tau_max, tmp)
+                    nm, rho = close_interval(st, H, mem, nm, a, last_t, spread, tau_max, keep, cb)
                     if st[0] < st[9]:
                         done = 1
                         break
-                    a = last_t  # the members still open carry over
-                    rho = 0.0
-                    reset_bounds(cb)
-                    n = 0
-                    for k in range(nm):
-                        if H[mem[k], E] > a:
-                            rho += add_member(H, hid, g_col, mem, n, cb, mem[k])
-                            n += 1
-                    nm = n
+                    for k in range(nm):  # the members still open carry over
+                        mem[k] = keep[k]
+                    a = last_t
         if nm == 0:
             a = t
             rho = 0.0
             cend = t
             reset_bounds(cb)
-        rho += add_member(H, hid, g_col, mem, nm, cb, h)
+        # a new member: its colour, value and erf at entry (FA) into its record
+        g = hid[h]
+        H[h, CR] = g_col[g, 0]
+        H[h, CG] = g_col[g, 1]
+        H[h, CB] = g_col[g, 2]
+        v = g_val[g]
+        H[h, VAL] = v if v == v else 0.0
+        H[h, VW] = 1.0 if v == v else 0.0
+        H[h, FA] = erf_fast(H[h, SA] * (H[h, S] - H[h, TS]))
+        widen(cb, H, h)
+        mem[nm] = h
         nm += 1
+        rho += H[h, PK]
         cend = max(cend, H[h, E])
         last_t = t
     if done == 0 and nm > 0 and cend <= horizon:  # no entry before its end is left to find
-        close_interval(st, H, hid, mem, nm, a, cend, spread_of(cb), g_col, g_val, tau_max, tmp)
+        close_interval(st, H, mem, nm, a, cend, spread_of(cb), tau_max, keep, cb)
         done = 1 if st[0] < st[9] else 0
         nm = 0
         last_t = cend
@@ -449,8 +442,8 @@ def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp,
           acc):
     if mode == 0:
-        return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, mem, tmp, cb, g_col,
-                               g_val, tau_max)
+        return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, act, cb, g_col, g_val,
+                               tau_max)
     return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj, ro, rd,
                        obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
 

@@ -329,7 +329,7 @@ class CPUDevice(Device):
                                     g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph,
                                     obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf,
                                     obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
-                                    t_start, t_items, t_mask, _spread_rows(b - a), o_rgba,
+                                    t_start, t_items, t_mask, o_rgba,
                                     o_depth, o_value, segs[a:b])
                 rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
                 a = b
@@ -345,12 +345,6 @@ class CPUDevice(Device):
         if "Value" in scene.passes:
             out["Value"] = value
         return out
-
-
-def _spread_rows(n, k=16):
-    """0..n-1 as rows 0, 16, 32, ..., then 1, 17, ...: any contiguous half or quarter of it
-    samples the whole image."""
-    return np.concatenate([np.arange(r, n, k) for r in range(k)]).astype(np.int64)
 
 
 def _lut_rgb(lut, x):
