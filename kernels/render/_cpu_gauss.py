@@ -401,21 +401,35 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj
                 break
             isamp = max(isamp + 1, int(math.ceil(ev_t[q0] / hstep - 0.5)))
             continue
-        for ob in range(n_obj):
-            svals[ob] = 0.0
-            sact[ob] = 0
         k = 0
-        while k < nact:
-            if H[k, EX] <= ti:  # ended before this sample: drop it
-                nact -= 1
-                _move_slot(H, act, k, nact)
-                continue
-            ob = 0 if n_obj == 1 else g_obj[hid[act[k]]]
-            svals[ob] += H[k, V]
-            sact[ob] = 1
-            H[k, V] *= H[k, R]
-            H[k, R] *= H[k, RC]
-            k += 1
+        if n_obj == 1:  # the sum in a register (svals[ob] += ... would store on every term)
+            sv = 0.0
+            while k < nact:
+                if H[k, EX] <= ti:  # ended before this sample: drop it
+                    nact -= 1
+                    _move_slot(H, act, k, nact)
+                    continue
+                sv += H[k, V]
+                H[k, V] *= H[k, R]
+                H[k, R] *= H[k, RC]
+                k += 1
+            svals[0] = sv
+            sact[0] = 1
+        else:
+            for ob in range(n_obj):
+                svals[ob] = 0.0
+                sact[ob] = 0
+            while k < nact:
+                if H[k, EX] <= ti:
+                    nact -= 1
+                    _move_slot(H, act, k, nact)
+                    continue
+                ob = g_obj[hid[act[k]]]
+                svals[ob] += H[k, V]
+                sact[ob] = 1
+                H[k, V] *= H[k, R]
+                H[k, R] *= H[k, RC]
+                k += 1
         st[7] += nact
         acc[:] = 0.0
         for ob in range(n_obj):
@@ -534,7 +548,7 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                      tf_par, svals, sact, samp, acc):
                 return 0
-        ob = g_obj[g]
+        ob = 0 if ro.shape[0] == 1 else g_obj[g]
         if test_one(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2], g_rec, k2,
                     H, hid, ev_t, ev_k, ev_h, qs) != 0:
             return OVERFLOW

@@ -132,9 +132,9 @@ def tf_x(v, par):
     return x
 
 
-@njit(**_hot)
-def lut_at(lut, x, ch):
-    """Linear interpolation of LUT channel ch at x in [0, 1]."""
+@njit(**_hot, inline="always")
+def lut_pos(lut, x):
+    """Row and weight of x in [0, 1] for linear interpolation in lut."""
     k = lut.shape[0]
     f = x * (k - 1)
     i = int(f)
@@ -142,8 +142,14 @@ def lut_at(lut, x, ch):
         i = k - 2
     if i < 0:
         i = 0
-    w = f - i
-    return lut[i, ch] * (1.0 - w) + lut[i + 1, ch] * w
+    return i, f - i
+
+
+@njit(**_hot, inline="always")
+def lut_rgb(lut, i, w, out):
+    """out[1:4] = the interpolated colour at (row i, weight w)."""
+    for c in range(3):
+        out[1 + c] = lut[i, c] * (1.0 - w) + lut[i + 1, c] * w
 
 
 
@@ -154,14 +160,15 @@ def composite(st, tau, r, g, b, v, ta, tb):
     if tau <= 0.0:
         return
     T = st[0]
-    w = -T * math.expm1(-tau)
+    em = math.expm1(-tau)
+    w = -T * em
     st[1] += w * r
     st[2] += w * g
     st[3] += w * b
     if v == v:
         st[5] += w * v
         st[6] += w
-    Tn = T * math.exp(-tau)
+    Tn = T * (1.0 + em)  # exp(-tau), within an ulp of 1
     if st[4] == BG_DEPTH and Tn <= 0.5:
         f = math.log(T / 0.5) / tau if T > 0.5 else 0.0
         st[4] = ta + f * (tb - ta)
@@ -203,16 +210,17 @@ def sample_color(ob, s, x_idx, y_idx, z_idx, obj_kind, obj_tf, obj_ls, tf_lut, t
             c = ls[1] * x_idx + ls[2] * y_idx + ls[3] * z_idx + ls[4]
             x = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else 0.5
             x = min(max(x, 0.0), 1.0)
-            out[1], out[2], out[3] = lut_at(lut, x, 0), lut_at(lut, x, 1), lut_at(lut, x, 2)
+            i, w = lut_pos(lut, x)
+            lut_rgb(lut, i, w, out)
         out[4] = np.nan
         return
     x = tf_x(s, par)
     if x != x:
         out[0] = 0.0
         return
-    a = lut_at(lut, x, 3)
-    out[0] = par[3] * a
-    out[1], out[2], out[3] = lut_at(lut, x, 0), lut_at(lut, x, 1), lut_at(lut, x, 2)
+    i, w = lut_pos(lut, x)
+    out[0] = par[3] * (lut[i, 3] * (1.0 - w) + lut[i + 1, 3] * w)
+    lut_rgb(lut, i, w, out)
     out[4] = s
 
 
