@@ -237,22 +237,23 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
 def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
                g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs,
-               hid, ev_t, ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+               hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
     return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                        cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
                        g_obj, g_clo, g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
-                       tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp, svals,
+                       tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, svals,
                        sact, samp, acc, cb, qs, fs)
 
 
 @njit(**_jit)
 def ray_scratch(cap):
     """Per-ray hit arrays for trace_gauss, room for cap hits: records, ids, the entry queue
-    (times, keys, hits), the active set (field), interval members (particles), per-member depths."""
+    (times, keys, hits), the active set (field; particles: the members carried over), the
+    interval's members (particles)."""
     return (np.empty((cap, NF)), np.empty(cap, np.int64), np.empty(cap), np.empty(cap, np.int64),
-            np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap))
+            np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64))
 
 
 @njit(**_hot)
@@ -262,7 +263,7 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
                   obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
                   t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb, iv_obj,
                   iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp,
-                  acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp):
+                  acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem):
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0; no allocation, no reference counting:
     see _cpu_math._hot), tile by tile (see render_band). Returns -1, or the pixel whose ray needs
     more hit rows than Hs has."""
@@ -338,13 +339,13 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
                                  ro, rd, g_rec, g_col, g_val, g_obj, k2, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
-                                 ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
+                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs)
             else:
                 rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
                                 cell_start, cell_items, face_start, face_items, g_rec, g_sph,
                                 obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tau_max, obj_step,
                                 obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
-                                ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs)
+                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs)
             if rc == OVERFLOW:
                 return p
         T = st[0]
@@ -393,7 +394,7 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
     fs = np.empty(5)
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
-    Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp = ray_scratch(cap)
+    Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
     out_segs[jr0:jr0 + nr] = 0.0
     p = 0
     while True:
@@ -404,11 +405,11 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
                           settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
-                          Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp)
+                          Hs, hid, ev_t, ev_k, ev_h, act, mem)
         if p < 0:
             return
         cap *= 2  # more Gaussians on ray p than this band's scratch holds: grow, redo it
-        Hs, hid, ev_t, ev_k, ev_h, act, mem, tmp = ray_scratch(cap)
+        Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
 
 
 @njit(parallel=True, **_jit)

@@ -364,8 +364,8 @@ def _move_slot(H, act, k, j):
 
 
 @njit(**_hot)
-def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj, ro, rd,
-                obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc):
+def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind, obj_tf,
+                obj_ls, tf_lut, tf_par, svals, sact, samp, acc):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque."""
     q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
     hstep = fs[HSTEP]
@@ -451,22 +451,22 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj
     return done
 
 
-@njit(**_hot)
-def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb, g_col, g_val,
+@njit(**_hot, inline="always")
+def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp,
           acc):
     if mode == 0:
         return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, act, cb, g_col, g_val,
                                tau_max)
-    return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, g_rec, g_obj, ro, rd,
-                       obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
+    return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind,
+                       obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
 
 
 @njit(**_hot)
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H, hid,
-                ev_t, ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+                ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
     """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order.
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
@@ -518,7 +518,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
         lastc[ob, 2] = cz
         # --- 2. sweep what is complete before the next cell's entry
         horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
-        if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb,
+        if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
                  g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                  tf_par, svals, sact, samp, acc):
             return 0
@@ -528,7 +528,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
-                ev_k, ev_h, act, mem, tmp, svals, sact, samp, acc, cb, qs, fs):
+                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
     by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles). Returns 0 or
     OVERFLOW."""
@@ -544,7 +544,7 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
         if qs[NH] >= swept + BATCH and ((qs[QH] < qs[NQ] and ev_t[qs[QH]] < lbg)
                                         or (qs[NM] > 0 and fs[CEND] <= lbg)):
             swept = qs[NH]
-            if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb,
+            if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                      tf_par, svals, sact, samp, acc):
                 return 0
@@ -552,7 +552,7 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
         if test_one(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2], g_rec, k2,
                     H, hid, ev_t, ev_k, ev_h, qs) != 0:
             return OVERFLOW
-    sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, tmp, cb, g_col, g_val,
+    sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact,
           samp, acc)
     return 0
