@@ -23,6 +23,7 @@ from ._cpu_math import (
     erf_diff,
     erf_span,
     line_integral,
+    lut_pos,
     sample_color,
     whitened_chord,
 )
@@ -31,6 +32,20 @@ from ._cpu_walk import walk_object
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
 __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
+
+
+@njit(parallel=True, **_jit)
+def lut_rows(lut, x, out):
+    """out[n] = the first out.shape[1] columns of lut interpolated at x[n] in [0, 1] (clamped; NaN:
+    zeros): the per-frame colours and opacities of every Gaussian, in parallel."""
+    for n in prange(x.shape[0]):
+        xn = x[n]
+        if xn != xn:
+            out[n, :] = 0.0
+            continue
+        i, w = lut_pos(lut, min(max(xn, 0.0), 1.0))
+        for c in range(out.shape[1]):
+            out[n, c] = lut[i, c] * (1.0 - w) + lut[i + 1, c] * w
 
 
 @njit(**_hot)

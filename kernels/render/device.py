@@ -79,6 +79,7 @@ class CPUDevice(Device):
         self.tile_rows = int(tile_rows)
         self._key = None
         self.gacc = None
+        self._g_rec = None  # the per-ray test records (render)
         self.vacc = None
         self.stats = {}
 
@@ -91,6 +92,7 @@ class CPUDevice(Device):
             return
         objs = scene.objects
         self.gacc = build_gauss_accel(objs, scene.support_k)
+        self._g_rec = None
         self.vacc = build_voxel_accel(objs) if any(o.grid is not None for o in objs) else None
         # per-object world coordinate ranges (level-set colouring) and voxel sizes
         n = len(objs)
@@ -170,10 +172,11 @@ class CPUDevice(Device):
                     col[s] = ls[8:11]
                 else:
                     c = A.g_mu[s] @ ls[1:4] + ls[4]
-                    x = np.clip((c - ls[5]) / (ls[6] - ls[5]), 0, 1) if ls[6] > ls[5] else np.full(c.shape, 0.5)
-                    col[s] = _lut_rgb(t.lut, x)
+                    x = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else np.full(c.shape, 0.5)
+                    self._k.lut_rows(t.lut, x, col[s])
             else:
-                rgba = t(v)
+                rgba = np.empty((v.shape[0], 4))
+                self._k.lut_rows(t.lut, np.where(np.isnan(v), np.nan, t.normalize(v)), rgba)
                 w[s] = t.density * rgba[:, 3] * a
                 col[s] = rgba[:, :3]
         return w, col
@@ -284,10 +287,13 @@ class CPUDevice(Device):
                 g_col = np.zeros((1, 3))
                 cell_items = face_items = np.zeros(1, np.int32)
                 g_clo = g_chi = np.zeros((1, 3), np.int64)
-            # what the per-ray Gaussian test reads, one 64-byte row each: centre, 1/sigma, weight,
-            # the entry bound (tile lists)
-            g_rec = np.zeros((g_mu.shape[0], 8))
-            g_rec[:, 0:3], g_rec[:, 3:6], g_rec[:, 6] = g_mu, g_inv, g_w
+            # what the per-ray Gaussian test reads, one 64-byte row each: centre, 1/sigma (kept from
+            # sync), this frame's weight and the entry bound (tile lists)
+            if self._g_rec is None or self._g_rec.shape[0] != g_mu.shape[0]:
+                self._g_rec = np.zeros((g_mu.shape[0], 8))
+                self._g_rec[:, 0:3], self._g_rec[:, 3:6] = g_mu, g_inv
+            g_rec = self._g_rec
+            g_rec[:, 6] = g_w
             g_sph, obj_ref = self.gacc.g_sph, self.gacc.obj_ref
             if g_sph.shape[0] == 0:
                 g_sph = np.zeros((1, 4), np.float32)
@@ -345,14 +351,6 @@ class CPUDevice(Device):
         if "Value" in scene.passes:
             out["Value"] = value
         return out
-
-
-def _lut_rgb(lut, x):
-    k = lut.shape[0]
-    f = np.clip(x, 0, 1) * (k - 1)
-    i0 = np.minimum(f.astype(np.int64), k - 2)
-    w = (f - i0)[:, None]
-    return lut[i0, :3] * (1 - w) + lut[i0 + 1, :3] * w
 
 
 def _resample(t: TransferFunction) -> TransferFunction:
