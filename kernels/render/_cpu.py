@@ -272,16 +272,16 @@ def ray_scratch(cap):
 
 
 @njit(**_hot)
-def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
-                  cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
-                  g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                  obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-                  t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb, iv_obj,
-                  iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp,
-                  acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem):
-    """Pixels p0.. of the band of nr output rows from jr0 (image row j0; no allocation, no reference counting:
-    see _cpu_math._hot), tile by tile (see render_band). Returns -1, or the pixel whose ray needs
-    more hit rows than Hs has."""
+def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
+                  cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w,
+                  g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks,
+                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk,
+                  t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb,
+                  iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact,
+                  samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem):
+    """Pixels p0.. of the band of nr output rows from jr0 (image row j0), tile by tile (see
+    render_band); no allocation, no reference counting (see _cpu_math._hot). Returns -1, or the
+    pixel whose ray needs more hit rows than Hs has."""
     W = int(cam[1])
     Hh = int(cam[2])
     ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
@@ -431,8 +431,8 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
 def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items, t_mask,
-                out_rgba, out_depth, out_value, out_segs):
+                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
+                t_mask, out_rgba, out_depth, out_value, out_segs):
     """Render rows [row0, row1) into out_* (indexed from 0 = row0) in bands of the screen tiles'
     rows (render_band), spread over the image in the order 0, 16, 32, ..., 1, 17, ...: the
     threads get contiguous blocks of it, so each samples the whole image (an object in the top
