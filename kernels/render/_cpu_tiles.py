@@ -107,35 +107,47 @@ def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
         lb[g] = lbg - 1e-9 * (abs(lbg) + 1.0)
 
 
-@njit(**_jit)
+NCHUNK = 8  # Gaussian chunks counted and scattered in parallel; chunk by chunk keeps id order
+
+
+@njit(parallel=True, **_jit)
 def tile_counts(box, ntx, nty):
-    """Entries per tile (cnt[t + 1]) and in all."""
-    cnt = np.zeros(ntx * nty + 1, np.int64)
-    for g in range(box.shape[0]):
-        if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
-            continue
-        for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
-            for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
-                cnt[ty * ntx + tx + 1] += 1
+    """Entries per Gaussian chunk and tile: cnt[c, t]."""
+    m = box.shape[0]
+    cnt = np.zeros((NCHUNK, ntx * nty), np.int64)
+    for c in prange(NCHUNK):
+        for g in range(c * m // NCHUNK, (c + 1) * m // NCHUNK):
+            if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
+                continue
+            for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
+                for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+                    cnt[c, ty * ntx + tx] += 1
     return cnt
 
 
 @njit(parallel=True, **_jit)
-def tile_fill(box, lb, start, ntx):
-    """Tile lists, each sorted by (lb, id): Gaussian ids (int32) and per entry the mask of the
-    tile's pixels in its rectangle (int64, bit TILE * (j % TILE) + i % TILE for pixel column i,
-    row j)."""
+def tile_fill(box, lb, cnt, start, ntx):
+    """Tile lists (tile t: items[start[t]:start[t + 1]], start from cnt's column sums), each sorted
+    by (lb, id): Gaussian ids (int32) and per entry the mask of the tile's pixels in its rectangle
+    (int64, bit TILE * (j % TILE) + i % TILE for pixel column i, row j)."""
     items = np.empty(start[-1], np.int32)
     masks = np.empty(start[-1], np.int64)
-    fill = start[:-1].copy()
-    for g in range(box.shape[0]):
-        if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
-            continue
-        for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
-            for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
-                t = ty * ntx + tx
-                items[fill[t]] = g
-                fill[t] += 1
+    m = box.shape[0]
+    fill = np.empty_like(cnt)
+    for t in prange(cnt.shape[1]):
+        acc = start[t]
+        for c in range(NCHUNK):
+            fill[c, t] = acc
+            acc += cnt[c, t]
+    for c in prange(NCHUNK):
+        for g in range(c * m // NCHUNK, (c + 1) * m // NCHUNK):
+            if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
+                continue
+            for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
+                for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+                    t = ty * ntx + tx
+                    items[fill[c, t]] = g
+                    fill[c, t] += 1
     for t in prange(start.shape[0] - 1):
         a = start[t]
         b = start[t + 1]
@@ -149,8 +161,8 @@ def tile_fill(box, lb, start, ntx):
             i0 = max(box[g, 0] - x0, 0)
             i1 = min(box[g, 1] - x0, TILE - 1)
             row = (np.int64(1) << (i1 + 1)) - (np.int64(1) << i0)  # bits i0..i1
-            m = np.int64(0)
+            bits = np.int64(0)
             for y in range(max(box[g, 2] - y0, 0), min(box[g, 3] - y0, TILE - 1) + 1):
-                m |= row << (TILE * y)
-            masks[q] = m
+                bits |= row << (TILE * y)
+            masks[q] = bits
     return items, masks

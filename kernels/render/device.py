@@ -243,11 +243,12 @@ class CPUDevice(Device):
         kt.gauss_footprints(cam, cmat, onorm, A.g_mu, A.g_inv, A.g_obj, g_w, float(scene.support_k), box, lb)
         ntx = (camera.width + kt.TILE - 1) // kt.TILE
         nty = (camera.height + kt.TILE - 1) // kt.TILE
-        start = kt.tile_counts(box, ntx, nty)
-        np.cumsum(start, out=start)
+        cnt = kt.tile_counts(box, ntx, nty)
+        start = np.zeros(ntx * nty + 1, np.int64)
+        np.cumsum(cnt.sum(0), out=start[1:])
         if start[-1] > MAX_TILE_ENTRIES:
             return none
-        items, masks = kt.tile_fill(box, lb, start, ntx)
+        items, masks = kt.tile_fill(box, lb, cnt, start, ntx)
         return start, items, masks, lb
 
     def render(self, scene, camera, tf, *, rows=None, progress=None, cancel=None):
