@@ -161,6 +161,14 @@ def median_depth(st, H, h, a, b, tsum):
 
 
 @njit(**_hot, inline="always")
+def mix_add(H, h, tk, tsum, r, g, b, vs, vw):
+    """The interval's sums (depth, depth-weighted colour and value, value weight) with member h's
+    depth tk added."""
+    return (tsum + tk, r + tk * H[h, CR], g + tk * H[h, CG], b + tk * H[h, CB], vs + tk * H[h, VAL],
+            vw + tk * H[h, VW])
+
+
+@njit(**_hot, inline="always")
 def composite_mix(st, tsum, r, g, b, vs, vw, a, c):
     """Composite a tau-weighted colour and value sum over [a, c]."""
     composite(st, tsum, r / tsum, g / tsum, b / tsum, vs / vw if vw > 0 else np.nan, a, c)
@@ -180,12 +188,7 @@ def close_interval(st, H, mem, nm, a, b, spread, tau_max, keep, cb):
         tk = H[h, C] * (fb - H[h, FA])
         H[h, FB] = H[h, FA]  # the erf at a, for the subdivisions
         H[h, FA] = fb
-        tsum += tk
-        r += tk * H[h, CR]
-        gg += tk * H[h, CG]
-        bb += tk * H[h, CB]
-        vs += tk * H[h, VAL]
-        vw += tk * H[h, VW]
+        tsum, r, gg, bb, vs, vw = mix_add(H, h, tk, tsum, r, gg, bb, vs, vw)
         if H[h, E] > b:
             keep[n] = h
             n += 1
@@ -214,12 +217,7 @@ def close_interval(st, H, mem, nm, a, b, spread, tau_max, keep, cb):
             f1 = H[h, FA] if s + 1 == nsub else erf_at(H, h, a1)
             tk = H[h, C] * (f1 - H[h, FB])
             H[h, FB] = f1
-            tsum += tk
-            r += tk * H[h, CR]
-            gg += tk * H[h, CG]
-            bb += tk * H[h, CB]
-            vs += tk * H[h, VAL]
-            vw += tk * H[h, VW]
+            tsum, r, gg, bb, vs, vw = mix_add(H, h, tk, tsum, r, gg, bb, vs, vw)
         st[7] += nm
         if tsum > 0.0:
             composite_mix(st, tsum, r, gg, bb, vs, vw, a0, a1)

@@ -110,6 +110,14 @@ def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
 NCHUNK = 8  # Gaussian chunks counted and scattered in parallel; chunk by chunk keeps id order
 
 
+@njit(**_jit, inline="always")
+def tile_span(box, g):
+    """Tiles covered by Gaussian g's rectangle: tx0, tx1, ty0, ty1 (an empty range when none)."""
+    if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
+        return 0, -1, 0, -1
+    return box[g, 0] // TILE, box[g, 1] // TILE, box[g, 2] // TILE, box[g, 3] // TILE
+
+
 @njit(parallel=True, **_jit)
 def tile_counts(box, ntx, nty):
     """Entries per Gaussian chunk and tile: cnt[c, t]."""
@@ -117,10 +125,9 @@ def tile_counts(box, ntx, nty):
     cnt = np.zeros((NCHUNK, ntx * nty), np.int64)
     for c in prange(NCHUNK):
         for g in range(c * m // NCHUNK, (c + 1) * m // NCHUNK):
-            if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
-                continue
-            for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
-                for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+            tx0, tx1, ty0, ty1 = tile_span(box, g)
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
                     cnt[c, ty * ntx + tx] += 1
     return cnt
 
@@ -141,10 +148,9 @@ def tile_fill(box, lb, cnt, start, ntx):
             acc += cnt[c, t]
     for c in prange(NCHUNK):
         for g in range(c * m // NCHUNK, (c + 1) * m // NCHUNK):
-            if box[g, 0] > box[g, 1] or box[g, 2] > box[g, 3]:
-                continue
-            for ty in range(box[g, 2] // TILE, box[g, 3] // TILE + 1):
-                for tx in range(box[g, 0] // TILE, box[g, 1] // TILE + 1):
+            tx0, tx1, ty0, ty1 = tile_span(box, g)
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
                     t = ty * ntx + tx
                     items[fill[c, t]] = g
                     fill[c, t] += 1
