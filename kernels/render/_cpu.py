@@ -11,7 +11,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._cpu_gauss import NF, OVERFLOW, trace_gauss, trace_tiles
+from ._cpu_gauss import NB, NF, OVERFLOW, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
     INF,
@@ -278,7 +278,7 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
                   cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk,
                   t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb,
                   iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact,
-                  samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem):
+                  samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk):
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0), tile by tile (see
     render_band); no allocation, no reference counting (see _cpu_math._hot). Returns -1, or the
     pixel whose ray needs more hit rows than Hs has."""
@@ -354,7 +354,7 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
                                  ro, rd, g_rec, g_col, g_val, g_obj, k2, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
-                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs)
+                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk)
             else:
                 rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
                                 cell_start, cell_items, face_start, face_items, g_rec, g_sph,
@@ -407,6 +407,8 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
     st = np.empty(12)
     qs = np.empty(6, np.int64)  # sweep state (_cpu_gauss)
     fs = np.empty(5)
+    cand = np.empty(NB, np.int64)  # trace_tiles' candidate block and its tests
+    blk = np.empty((NB, 8))
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
     Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
@@ -420,7 +422,7 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
                           settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
-                          Hs, hid, ev_t, ev_k, ev_h, act, mem)
+                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk)
         if p < 0:
             return
         cap *= 2  # more Gaussians on ray p than this band's scratch holds: grow, redo it

@@ -252,9 +252,10 @@ def sweep_start(mode, qs, fs, cb, rd, obj_step):
 
 
 @njit(**_hot, inline="always")
-def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs):
-    """The exact ray/support test of Gaussian g (object-index-space ray); a hit gets a record in H
-    and an entry event. Returns OVERFLOW when H is full."""
+def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2):
+    """The exact ray/support test of Gaussian g (object-index-space ray), without branches: s, e,
+    ts, aa, qq, ra, pk (chord, closest approach, |d'|^2, its squared distance, 1 / |d'|, peak
+    density); a miss has s >= e. One division and two roots."""
     ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
     wx, wy, wz = (ox - g_rec[g, 0]) * ix, (oy - g_rec[g, 1]) * iy, (oz - g_rec[g, 2]) * iz
     vx, vy, vz = dx * ix, dy * iy, dz * iz
@@ -264,30 +265,39 @@ def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs)
     ts = -bb * ia
     px, py, pz = wx + ts * vx, wy + ts * vy, wz + ts * vz
     qq = px * px + py * py + pz * pz
-    if qq >= k2:
-        return 0
-    ra = math.sqrt(ia)  # 1 / |d'|: one division and two roots in all
-    hw = math.sqrt(k2 - qq) * ra
-    s = ts - hw
-    e = ts + hw
-    if s < 0.0:
-        s = 0.0
-    if not e > s:
-        return 0
-    nh = qs[NH]
-    if nh >= H.shape[0]:
-        return OVERFLOW
+    ra = math.sqrt(ia)
+    hw = math.sqrt(max(k2 - qq, 0.0)) * ra
+    s = max(ts - hw, 0.0) if qq < k2 else INF
+    pk = g_rec[g, 6] * math.exp(-0.5 * min(qq, k2))
+    return s, ts + hw, ts, aa, qq, ra, pk
+
+
+@njit(**_hot, inline="always")
+def add_hit(H, hid, ev_t, ev_k, ev_h, q0, nq, nh, g, s, e, ts, aa, qq, ra, pk):
+    """Hit nh's record in H and its entry event; returns the queue's new end."""
     H[nh, S] = s
     H[nh, E] = e
     H[nh, TS] = ts
     H[nh, SA] = SQRT_HALF * aa * ra
     H[nh, HQ] = 0.5 * qq
     H[nh, HA] = 0.5 * aa
-    pk = g_rec[g, 6] * math.exp(-0.5 * qq)
     H[nh, PK] = pk
     H[nh, C] = pk * SQRT_HALF_PI * ra
     hid[nh] = g
-    qs[NQ] = queue_insert(ev_t, ev_k, ev_h, qs[QH], qs[NQ], s, np.int64(g), nh)
+    return queue_insert(ev_t, ev_k, ev_h, q0, nq, s, np.int64(g), nh)
+
+
+@njit(**_hot, inline="always")
+def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs):
+    """Gaussian g's test (chord); a hit gets a record in H and an entry event. Returns OVERFLOW
+    when H is full."""
+    s, e, ts, aa, qq, ra, pk = chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2)
+    if not e > s:
+        return 0
+    nh = qs[NH]
+    if nh >= H.shape[0]:
+        return OVERFLOW
+    qs[NQ] = add_hit(H, hid, ev_t, ev_k, ev_h, qs[QH], qs[NQ], nh, g, s, e, ts, aa, qq, ra, pk)
     qs[NH] = nh + 1
     return 0
 
@@ -523,22 +533,44 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
     return 0
 
 
+NB = 32  # candidates tested per block (trace_tiles)
+
+
+@njit(**_hot, inline="always")
+def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, blk):
+    """The tests (chord) of candidates cand[:nc] into blk[c] = s, e, ts, aa, qq, ra, pk, apart
+    from the queue insertion: no branch then waits on a candidate's division and roots (together
+    they cost ~18% more on dense volumes)."""
+    one = ro.shape[0] == 1
+    for c in range(nc):
+        g = cand[c]
+        ob = 0 if one else g_obj[g]
+        (blk[c, 0], blk[c, 1], blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5],
+         blk[c, 6]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
+                            g_rec, k2)
+
+
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
                 k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
-                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
+                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
-    by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles). Returns 0 or
-    OVERFLOW."""
+    by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles), in blocks of NB
+    candidates (the entries with the pixel's mask bit). Returns 0 or OVERFLOW."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
     swept = 0
     bit = (j % TILE) * TILE + i % TILE
-    for q in range(t0, t1):
-        if not (t_mask[q] >> bit) & 1:
-            continue
-        g = t_items[q]
-        lbg = g_rec[g, LB]
-        # sweep in batches, after BATCH new hits, up to this support's earliest entry
+    q = t0
+    while True:
+        nc = 0
+        while q < t1 and nc < NB:
+            cand[nc] = t_items[q]
+            nc += (t_mask[q] >> bit) & 1
+            q += 1
+        if nc == 0:
+            break
+        lbg = g_rec[cand[0], LB]
+        # sweep after BATCH new hits, up to the block's earliest entry
         if qs[NH] >= swept + BATCH and ((qs[QH] < qs[NQ] and ev_t[qs[QH]] < lbg)
                                         or (qs[NM] > 0 and fs[CEND] <= lbg)):
             swept = qs[NH]
@@ -546,10 +578,20 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                      tf_par, svals, sact, samp, acc):
                 return 0
-        ob = 0 if ro.shape[0] == 1 else g_obj[g]
-        if test_one(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2], g_rec, k2,
-                    H, hid, ev_t, ev_k, ev_h, qs) != 0:
-            return OVERFLOW
+        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, blk)
+        nh = qs[NH]
+        nq = qs[NQ]
+        q0 = qs[QH]
+        for c in range(nc):
+            if not blk[c, 1] > blk[c, 0]:
+                continue
+            if nh >= H.shape[0]:
+                return OVERFLOW
+            nq = add_hit(H, hid, ev_t, ev_k, ev_h, q0, nq, nh, cand[c], blk[c, 0], blk[c, 1],
+                         blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5], blk[c, 6])
+            nh += 1
+        qs[NH] = nh
+        qs[NQ] = nq
     sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact,
           samp, acc)
