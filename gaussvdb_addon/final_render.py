@@ -86,23 +86,10 @@ def register_passes(engine, scene, renderlayer):
 
 
 def new_device():
-    """A CPU device whose numba kernels are cached in the extension's user directory."""
+    """A CPU device (its kernels cached where registration pointed kernels.cachedir)."""
     from ..kernels.render import get_device as kernel_device
 
-    kw = {}
-    try:
-        import os
-
-        import bpy
-
-        if os.environ.get("NUMBA_CACHE_DIR"):
-            raise LookupError  # the user's (or the test suite's) choice wins
-
-        pkg = __package__.rsplit(".", 1)[0]
-        kw["cache_dir"] = bpy.utils.extension_path_user(pkg, path="numba_cache", create=True)
-    except Exception:  # noqa: BLE001  (not an installed extension, or NUMBA_CACHE_DIR set)
-        pass
-    return kernel_device("CPU", **kw)
+    return kernel_device("CPU")
 
 
 def get_device():

@@ -1,8 +1,11 @@
 """The one registration hub: every module with Blender classes is listed here, in order."""
 
+import os
+
 import bpy
 
 from .. import operators
+from ..kernels import cachedir
 from . import engine, object_panel, object_settings, presets, render_panel, render_settings
 
 # Properties first (others point at them), panels last (they draw the rest).
@@ -10,6 +13,14 @@ MODULES = (object_settings, render_settings, presets, operators, engine, render_
 
 
 def register():
+    if not (os.environ.get("GAUSSVDB_CACHE_DIR") or os.environ.get("NUMBA_CACHE_DIR")):
+        # compiled kernels go in the extension's user folder, never in its (read-only) source
+        pkg = __package__.rsplit(".", 1)[0]
+        try:
+            cachedir.set_cache_root(bpy.utils.extension_path_user(pkg, path="kernel_cache",
+                                                                  create=True))
+        except (ValueError, OSError):  # not loaded as an extension: the default rule applies
+            pass
     for module in MODULES:
         for cls in module.CLASSES:
             bpy.utils.register_class(cls)

@@ -23,7 +23,11 @@ _TMP = tempfile.mkdtemp(prefix="gaussvdb-tests-")
 os.environ["BLENDER_USER_EXTENSIONS"] = os.path.join(ROOT, ".pytest_cache", "blender_extensions")
 os.environ["BLENDER_USER_CONFIG"] = os.path.join(_TMP, "config")
 os.environ["BLENDER_USER_SCRIPTS"] = os.path.join(_TMP, "scripts")
-os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(ROOT, ".pytest_cache", "numba"))
+# Compiled kernels: the per-user cache folder (never the source tree); kernels.cachedir keeps
+# each importing identity (`kernels`, `bl_ext...gaussvdb.kernels`) and source version apart.
+from kernels.cachedir import user_cache_root  # noqa: E402
+
+os.environ.setdefault("GAUSSVDB_CACHE_DIR", user_cache_root())
 
 
 def shared_data_files():
@@ -61,3 +65,50 @@ def scene(addon, bpy_module):
     """A factory-fresh empty scene (the temporary config has no startup file), add-on kept enabled."""
     bpy_module.ops.wm.read_homefile(use_empty=True)
     return bpy_module.context.scene
+
+
+def _copy_tree(dst):
+    """The working tree's files (tracked, and untracked but not ignored) copied to ``dst``: what a
+    fresh clone of it holds, without .venv, caches or build outputs."""
+    import shutil
+    import subprocess
+
+    shutil.rmtree(dst, ignore_errors=True)
+    listed = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT,
+                            capture_output=True, check=True).stdout.split(b"\0")
+    for rel in filter(None, (p.decode() for p in listed)):
+        src = os.path.join(ROOT, rel)
+        if os.path.isfile(src):
+            os.makedirs(os.path.dirname(os.path.join(dst, rel)), exist_ok=True)
+            shutil.copy2(src, os.path.join(dst, rel))
+    return dst
+
+
+def run_cli(root, *args, env=None, timeout=900):
+    """``./gaussvdb ARGS`` of the checkout at ``root`` with this interpreter; CompletedProcess."""
+    import subprocess
+
+    return subprocess.run([sys.executable, os.path.join(root, "tools", "cli.py"), *args], cwd=root,
+                          env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def fresh_clone(tmp_path_factory):
+    """A fresh copy of the working tree in which `render` ran first (the order that used to leave
+    extension-named kernel caches for the plain-Python commands), then `convert` and `info`, each
+    in its own process with the environment a user has (no Blender folders of the suite's).
+    Returns (root, env, {command: CompletedProcess}, tmp). The copy's path is stable per checkout
+    so its compiled kernels are reused from one run of the suite to the next."""
+    import hashlib
+
+    tag = hashlib.sha1(os.path.realpath(ROOT).encode()).hexdigest()[:12]
+    root = _copy_tree(os.path.join(tempfile.gettempdir(), f"gaussvdb-clone-{tag}"))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("BLENDER_USER_")}
+    tmp = tmp_path_factory.mktemp("clone_out")
+    sample = os.path.join(root, "samples", os.path.basename(SAMPLE))
+    runs = {}
+    runs["render"] = run_cli(root, "render", sample, "--lod", "low", "--mode", "particles",
+                             "--size", "64x64", "--out", str(tmp / "a.png"), "--json", env=env)
+    runs["convert"] = run_cli(root, "convert", sample, "--lod", "high", "--json", env=env)
+    runs["info"] = run_cli(root, "info", sample, env=env)
+    return root, env, runs, tmp

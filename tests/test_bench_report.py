@@ -1,4 +1,5 @@
-"""`./gaussvdb bench --quick` (issue 7) end to end on the bundled sample, in a temporary data folder.
+"""`./gaussvdb bench --quick` end to end on the bundled sample, in a temporary data folder, run in a
+fresh copy of the working tree right after `render` (see conftest.fresh_clone).
 
 Runs the benchmark as a subprocess (it starts its own Cycles subprocess through the bpy module) and
 checks the files, the keys of results.json, that errors are finite and ordered sensibly. Never
@@ -12,24 +13,22 @@ import subprocess
 import sys
 
 import pytest
-from conftest import ROOT, SAMPLE
+from conftest import SAMPLE, run_cli
 
 KEYS = ("dataset", "grid", "class", "lod", "mode", "gaussians", "bytes", "seconds_convert",
         "seconds_render", "field_nrmse", "psnr", "ssim", "renderer", "samples")
 
 
 @pytest.fixture(scope="module")
-def quick_run(tmp_path_factory):
+def quick_run(tmp_path_factory, fresh_clone):
+    """`bench --quick` in the fresh clone, after `render`, `convert` and `info` ran there."""
+    root, env, _runs, _tmp = fresh_clone
     data = tmp_path_factory.mktemp("data")
     out = tmp_path_factory.mktemp("bench")
     shutil.copy(SAMPLE, data)
-    env = dict(os.environ)
-    for k in ("BLENDER_USER_EXTENSIONS", "BLENDER_USER_CONFIG", "BLENDER_USER_SCRIPTS"):
-        env.pop(k, None)  # the Cycles subprocess isolates itself
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "cli.py"), "bench", "--quick",
-                        "--data", str(data), "--out", str(out)], capture_output=True, text=True, check=False,
-                       cwd=ROOT, env=env, timeout=900)
+    r = run_cli(root, "bench", "--quick", "--data", str(data), "--out", str(out), env=env)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "Traceback" not in r.stderr
     with open(out / "results.json") as f:
         return out, json.load(f), r.stderr
 

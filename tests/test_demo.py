@@ -10,7 +10,8 @@ from conftest import ROOT
 
 def test_demo_imports_every_lod_and_renders(tmp_path):
     out = tmp_path / "demo"
-    # the suite's extensions folder: the demo then reuses the kernels the suite already compiled
+    # the suite's extensions folder: the demo reuses the suite's Blender set-up (and, through
+    # GAUSSVDB_CACHE_DIR, the kernels it compiled)
     env = dict(os.environ, GAUSSVDB_BLENDER_EXTENSIONS=os.environ["BLENDER_USER_EXTENSIONS"])
     proc = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "cli.py"), "demo", "--json",
                            "--size", "32x24", "--out", str(out)],

@@ -62,7 +62,11 @@ def test_tf_from_ramp_and_stops():
 
 def test_value_range():
     assert value_range([3.0, np.nan, 1.0]) == (1.0, 3.0)
-    assert value_range([-1.0, 0.0, 4.0], log_scale=True) == (4.0, 40.0)
+    # a flat range widens downwards: the one value maps to the top of the ramp, never its end
+    assert value_range([-1.0, 0.0, 4.0], log_scale=True) == (0.4, 4.0)
+    assert value_range([0.5, 0.5]) == (0.0, 0.5)  # the empty background stays transparent
+    assert value_range([-3.0]) == (-6.0, -3.0)
+    assert value_range([0.0]) == (-1.0, 0.0)
     assert value_range([]) == (0.0, 1.0)
 
 

@@ -5,11 +5,13 @@
 
 Like tests/conftest.py: BLENDER_USER_EXTENSIONS/CONFIG/SCRIPTS point at a private folder whose
 `user_default/gaussvdb` is a symlink to the repository root, and `bl_ext.user_default.gaussvdb`
-is enabled. The folder is stable per user (not a fresh temp dir per run) so numba's kernel cache,
-which is keyed by the source path, is reused from one run to the next.
+is enabled. The folder is private to this checkout (two checkouts run at once never load each
+other's code) and stable, so Blender's set-up is reused from one run to the next. Compiled kernels
+go to the per-user cache folder of kernels.cachedir, never into the source tree.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 import tempfile
@@ -21,7 +23,8 @@ _STARTED = {}
 
 def session_dir() -> str:
     uid = os.getuid() if hasattr(os, "getuid") else 0
-    return os.path.join(tempfile.gettempdir(), f"gaussvdb-session-{uid}")
+    tree = hashlib.sha1(os.path.realpath(ROOT).encode()).hexdigest()[:12]
+    return os.path.join(tempfile.gettempdir(), f"gaussvdb-session-{uid}-{tree}")
 
 
 def start():
@@ -36,12 +39,16 @@ def start():
         os.path.join(base, "extensions")
     os.environ["BLENDER_USER_CONFIG"] = os.path.join(base, "config")
     os.environ["BLENDER_USER_SCRIPTS"] = os.path.join(base, "scripts")
-    os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(base, "numba"))
+    if ROOT not in sys.path:
+        sys.path.insert(0, ROOT)
+    from kernels.cachedir import user_cache_root
+
+    os.environ.setdefault("GAUSSVDB_CACHE_DIR", user_cache_root())
     repo = os.path.join(os.environ["BLENDER_USER_EXTENSIONS"], "user_default")
     os.makedirs(repo, exist_ok=True)
     link = os.path.join(repo, "gaussvdb")
     if os.path.islink(link) and os.path.realpath(link) != os.path.realpath(ROOT):
-        os.unlink(link)  # another checkout used this folder last
+        os.unlink(link)  # the checkout was moved
     if not os.path.lexists(link):
         os.symlink(ROOT, link)
     import bpy  # noqa: I001  (bpy first: it puts addon_utils on the path)

@@ -23,8 +23,8 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from numba import njit, prange
 
+from ..jit import njit, parallel_njit, prange
 from .build import effective_masks, finite_grid
 from .levelset import band_threshold
 
@@ -81,7 +81,7 @@ def _cells_of(g, cent, sig, k, keys, corg, out, pos, write):
     return n
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def _count_pairs(cent, sig, k, keys, corg):
     m = cent.shape[0]
     cnt = np.zeros(m, np.int64)
@@ -91,7 +91,7 @@ def _count_pairs(cent, sig, k, keys, corg):
     return cnt
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def _fill_pairs(cent, sig, k, keys, corg, start, out):
     for g in prange(cent.shape[0]):
         _cells_of(g, cent, sig, k, keys, corg, out, start[g], True)
@@ -123,7 +123,7 @@ def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
                         acc[base + z] += wxy * e[2, z]
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
     nc = corg.shape[0]
     sse = np.zeros(nc)

@@ -8,7 +8,8 @@ scheme runs, so every Gaussian covers shell voxels only. `band_width` (in voxels
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+
+from ..jit import njit, parallel_njit, prange
 
 DEFAULT_BAND_WIDTH = 0.5 * np.sqrt(3.0)
 
@@ -24,7 +25,7 @@ def in_band(v, thr):
     return abs(v) <= thr
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def band_masks(masks, values, thr):
     """uint64 (N, 8): active voxels with |value| <= thr."""
     n = masks.shape[0]

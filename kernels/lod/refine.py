@@ -20,8 +20,8 @@ the result does not depend on the thread count.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
 
+from ..jit import parallel_njit, prange
 from .error import DEFAULT_K, cell_mixture, setup
 
 FMAX = 8.0  # largest amplitude factor (an isolated voxel needs ~3.4 at sigma = 0.6 voxel)
@@ -30,7 +30,7 @@ CMIN = -16 * QSTEPS  # smallest non-zero factor 2^-16; below it the factor is 0
 POWER = 4.0  # psi = g^POWER
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum, pden):
     nc = corg.shape[0]
     k2 = k * k

@@ -20,9 +20,9 @@ from __future__ import annotations
 import types
 
 import numpy as np
-from numba import njit, prange
 from numba.cpython.unsafe.numbers import trailing_zeros  # LLVM cttz: no public numba API
 
+from ..jit import njit, parallel_njit, prange
 from .levelset import in_band
 from .weights import gaussian_shape, put_centre, put_shape
 
@@ -249,7 +249,7 @@ FULL = np.uint64(0xFFFFFFFFFFFFFFFF)
 FLT_MAX = np.float32(3.4028235e38)
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def scan_leaves(masks, values, order, band, thr, scheme):
     """The one full read of the active values. Leaf i of the canonical order is order[i]. Returns
     lo, hi: float64 per leaf (file order): min / max of its active values (NaN ignored, +-inf when
@@ -285,7 +285,7 @@ def scan_leaves(masks, values, order, band, thr, scheme):
     return lo, hi, bad, kept, counts
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def count_leaves(kept, values, order, scheme, thr_sp, thr_v2):
     """Gaussians per leaf of the variance scheme (its splits depend on the values)."""
     n = order.shape[0]
@@ -339,7 +339,7 @@ def _high_leaf(mrow, vals, k, level_set, paper, scale, out):
 CHUNK = 32  # leaves per parallel task: one set of scratch arrays per task, not per leaf
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, level_set, paper, scale,
                    out):
     """Every leaf's Gaussians into out (see weights.new_gaussians) at rows starts[i]..."""
@@ -369,7 +369,7 @@ def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, level_se
                 put_shape(out, starts[i] + q, starts[i] + q + 1, shape, nvox[q])
 
 
-@njit(parallel=True, cache=True)
+@parallel_njit(cache=True)
 def fill_boxes(kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val, kind):
     """Every leaf's boxes (for the merge pass, which works on boxes)."""
     n = order.shape[0]

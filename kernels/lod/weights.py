@@ -15,7 +15,8 @@ sigma = sigma_scale * size_code, computed the same way here and in the decoder (
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..jit import njit
 
 DEFAULT_SIGMA_FACTOR = 0.6
 TWO_PI_32 = (2.0 * np.pi) ** 1.5

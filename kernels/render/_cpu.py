@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
 
+from ..jit import njit, parallel_njit, prange
 from ._cpu_gauss import NB, NF, OVERFLOW, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
@@ -34,7 +34,7 @@ from ._cpu_walk import walk_object
 __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
 
 
-@njit(parallel=True, **_jit)
+@parallel_njit(**_jit)
 def lut_rows(lut, x, out):
     """out[n] = the first out.shape[1] columns of lut interpolated at x[n] in [0, 1] (clamped; NaN:
     zeros): the per-frame colours and opacities of every Gaussian, in parallel."""
@@ -429,7 +429,7 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
         Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
 
 
-@njit(parallel=True, **_jit)
+@parallel_njit(**_jit)
 def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,

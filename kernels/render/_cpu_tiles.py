@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
 
+from ..jit import njit, parallel_njit, prange
 from ._cpu_math import INF, _jit
 
 TILE = 8
@@ -49,7 +49,7 @@ def _roots(c, cz, sxx, sxz, szz):
     return min(u0, u1), max(u0, u1)
 
 
-@njit(parallel=True, **_jit)
+@parallel_njit(**_jit)
 def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
     """Per Gaussian: box = pixel rectangle (i0, i1, j0, j1; empty when i0 > i1 or j0 > j1) and lb =
     a lower bound of the ray parameter where rays enter its k-sigma support.
@@ -118,7 +118,7 @@ def tile_span(box, g):
     return box[g, 0] // TILE, box[g, 1] // TILE, box[g, 2] // TILE, box[g, 3] // TILE
 
 
-@njit(parallel=True, **_jit)
+@parallel_njit(**_jit)
 def tile_counts(box, ntx, nty):
     """Entries per Gaussian chunk and tile: cnt[c, t]."""
     m = box.shape[0]
@@ -132,7 +132,7 @@ def tile_counts(box, ntx, nty):
     return cnt
 
 
-@njit(parallel=True, **_jit)
+@parallel_njit(**_jit)
 def tile_fill(box, lb, cnt, start, ntx):
     """Tile lists (tile t: items[start[t]:start[t + 1]], start from cnt's column sums), each sorted
     by (lb, id): Gaussian ids (int32) and per entry the mask of the tile's pixels in its rectangle

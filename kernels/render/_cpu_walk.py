@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
+from ..jit import njit
 from ._cpu_math import INF, LEAF, NL, NODE, _hot
 
 

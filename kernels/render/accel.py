@@ -11,7 +11,8 @@ ascending Gaussian id. All objects are packed into flat arrays with global ids.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..jit import njit
 
 LEAF = 8
 NODE_LEAVES = 16

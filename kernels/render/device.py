@@ -10,13 +10,12 @@ nothing was hit; level sets contribute no value).
 """
 from __future__ import annotations
 
-import hashlib
-import os
 import time
 from abc import ABC, abstractmethod
 
 import numpy as np
 
+from ..cachedir import set_cache_root
 from .accel import build_gauss_accel, build_voxel_accel
 from .scene import RenderScene, same_geometry
 from .transfer import LUT_SIZE, TransferFunction
@@ -64,13 +63,13 @@ def _range_alpha(tf, lo, hi):
 
 class CPUDevice(Device):
     """numba CPU device. ``threads``: numba threads (default all). ``cache_dir``: where numba
-    caches compiled kernels (the engine passes the extension's user directory, e.g.
-    ``bpy.utils.extension_path_user(__package__, path='numba_cache', create=True)``); it applies
-    if given before the kernels are first imported in this process."""
+    caches compiled kernels (kernels.cachedir's rule when not given); it applies if given before
+    the kernels are first imported in this process."""
     name = "CPU"
 
     def __init__(self, threads=None, cache_dir=None, tile_rows=32, screen_tiles=True):
-        _choose_cache_dir(cache_dir)
+        if cache_dir:
+            set_cache_root(cache_dir)
         from . import _cpu, _cpu_tiles  # noqa: F401  (compiles or loads cached kernels lazily)
         self._k = _cpu
         self._kt = _cpu_tiles
@@ -361,50 +360,6 @@ def _resample(t: TransferFunction) -> TransferFunction:
     xp = np.linspace(0, 1, t.lut.shape[0])
     lut = np.stack([np.interp(x, xp, t.lut[:, c]) for c in range(4)], axis=1)
     return TransferFunction(lut, t.vmin, t.vmax, t.log_scale, t.density)
-
-
-_cache_chosen = False
-
-
-def kernel_tag():
-    """Hash of the kernel sources. numba's cache only notices edits to a function's own file, and
-    the kernels call across modules (_cpu*.py), so each version of them gets its own cache folder."""
-    h = hashlib.sha1()
-    here = os.path.dirname(os.path.abspath(__file__))
-    for name in sorted(os.listdir(here)):
-        if name.startswith("_cpu") and name.endswith(".py"):
-            with open(os.path.join(here, name), "rb") as fh:
-                h.update(fh.read())
-    return h.hexdigest()[:12]
-
-
-def _choose_cache_dir(cache_dir):
-    """Once per process, before the kernels are imported: the given folder, else NUMBA_CACHE_DIR,
-    else (imported as an extension package, whose module name numba pickles into its entries) a
-    temporary folder, else the package's __pycache__; always in a subfolder per kernel_tag()."""
-    global _cache_chosen
-    if _cache_chosen:
-        return
-    base = cache_dir or os.environ.get("NUMBA_CACHE_DIR")
-    if not base:
-        if __name__.startswith("kernels."):
-            base = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__", "numba")
-        else:
-            import tempfile
-            base = os.path.join(tempfile.gettempdir(), "gaussvdb_numba_" + __name__.replace(".", "_"))
-    set_cache_dir(os.path.join(base, "render-" + kernel_tag()))
-    _cache_chosen = True
-
-
-def set_cache_dir(path):
-    """Point numba's kernel cache at ``path`` (call before the first CPUDevice in a process)."""
-    os.makedirs(path, exist_ok=True)
-    os.environ["NUMBA_CACHE_DIR"] = path
-    try:
-        import numba
-        numba.config.CACHE_DIR = path
-    except Exception:  # pragma: no cover
-        pass
 
 
 _REGISTRY = {"CPU": CPUDevice}

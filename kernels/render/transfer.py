@@ -111,7 +111,10 @@ class TransferFunction:
 
 def value_range(values, log_scale=False):
     """Auto value range from data: min/max of the finite values (the positive ones for log).
-    Returns (0, 1) (or (1e-3, 1) for log) when there is nothing usable; widens a flat range."""
+    Returns (0, 1) (or (1e-3, 1) for log) when there is nothing usable. A flat range (a grid whose
+    active voxels all hold one value v) is widened downwards so v maps to the top of the ramp: a
+    constant medium shows as a uniform, visible one, not as the ramp's transparent end. The low
+    end is 0 for v > 0 (the empty background stays transparent), v/10 for log scale."""
     v = np.asarray(values, np.float64).ravel()
     v = v[np.isfinite(v)]
     if log_scale:
@@ -120,5 +123,5 @@ def value_range(values, log_scale=False):
         return (1e-3, 1.0) if log_scale else (0.0, 1.0)
     lo, hi = float(v.min()), float(v.max())
     if hi <= lo:
-        hi = lo * 10.0 if log_scale else lo + 1.0
+        lo = hi / 10.0 if log_scale else (0.0 if hi > 0 else hi - max(-hi, 1.0))
     return lo, hi

@@ -20,20 +20,14 @@ import sys
 
 import numpy as np
 
-try:
+from ..jit import HAVE_NUMBA, njit, parallel_njit, prange
+
+if HAVE_NUMBA:
     from llvmlite import ir
-    from numba import njit, prange, types
+    from numba import types
     from numba.core import cgutils
     from numba.extending import intrinsic
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - without numba these would run as (slow) Python: unused
-    HAVE_NUMBA = False
-
-    def njit(*args, **kwargs):
-        return (lambda f: f) if not args or not callable(args[0]) else args[0]
-
-    prange = range
-
+else:  # pragma: no cover - without numba these would run as (slow) Python: unused
     def intrinsic(f):
         return f
 
@@ -248,7 +242,7 @@ def _inflate_serial(n, *args):
         _inflate_one(j, *args)
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@parallel_njit(cache=True, nogil=True)
 def _inflate_parallel(n, *args):
     for j in prange(n):
         _inflate_one(np.int64(j), *args)

@@ -17,13 +17,7 @@ try:
 except ImportError:  # pragma: no cover
     blosc_ptr = None
 
-try:
-    from numba import njit, prange
-except ImportError:  # pragma: no cover - numba is optional at run time
-    def njit(*args, **kwargs):
-        return (lambda f: f) if not args or not callable(args[0]) else args[0]
-
-    prange = range
+from ..jit import njit, parallel_njit, prange
 
 # Below this many leaves (or zip chunks) the loops run serially: starting threads would cost more
 # than it saves, and on a busy machine a parallel region can wait a whole time slice for a thread.
@@ -389,7 +383,7 @@ def _decode_serial(ntasks, *args):
         _decode_task(c, *args)
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@parallel_njit(cache=True, nogil=True)
 def _decode_parallel(ntasks, *args):
     for c in prange(ntasks):  # leaves are independent: any thread count gives the same result
         _decode_task(np.int64(c), *args)

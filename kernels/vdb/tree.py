@@ -12,6 +12,7 @@ import threading
 
 import numpy as np
 
+from ..jit import njit
 from .codec import (
     COMPRESS_ACTIVE_MASK,
     COMPRESS_BLOSC,
@@ -22,12 +23,6 @@ from .codec import (
     read_node_parts,
 )
 from .frames import HAVE_NUMBA, blosc_frame, copy_bytes
-
-try:
-    from numba import njit
-except ImportError:  # pragma: no cover - numba is optional at run time
-    def njit(*args, **kwargs):
-        return (lambda f: f) if not args or not callable(args[0]) else args[0]
 
 # level -> (log2 of the node's slots per axis, edge of one slot in voxels)
 _LEVELS = {2: (5, 128), 1: (4, 8)}
