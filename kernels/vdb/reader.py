@@ -296,10 +296,20 @@ class _Reader:
                                     f"file of {len(buf)} bytes", d["at"])
                 cur.pos = d["end_pos"]  # the next descriptor follows this grid
             else:
+                # Nothing pins a stream grid's end but the next descriptor and the end of the file:
+                # a grid misread to a wrong length shows up there, so blame it.
+                if not d["type"].startswith("Tree_"):
+                    raise VDBFormatError(
+                        f"garbled grid descriptor (type {d['type'][:40]!r})"
+                        + (f": grid {descs[-1]['display']!r} before it was misread" if descs else ""),
+                        self.path, descs[-1]["display"] if descs else None, d["at"])
                 self._one(cur, d, version, result, wanted)  # parse it to find the next one
             descs.append(d)
         if self.has_offsets:
             self._offset_grids(buf, descs, version, result, wanted)
+        elif descs and not descs[-1].get("unparsed") and cur.pos != len(buf):
+            raise VDBFormatError(f"{len(buf) - cur.pos} bytes follow the last grid: a grid was "
+                                 "misread", self.path, descs[-1]["display"], cur.pos)
         self._check_wanted(wanted, descs, result)
         return result
 
@@ -344,8 +354,12 @@ class _Reader:
             reason = str(e.args[0])
             if requested:
                 raise VDBFormatError(f"grid cannot be read: {reason}", self.path, name, cur.pos) from None
-            if not self.has_offsets and not d["last"]:
-                self._skim(cur, d, reason)  # the next grid starts where this one ends
+            if not self.has_offsets and not self._skim(cur, d, reason):  # find where it ends
+                if not d["last"]:
+                    raise VDBFormatError(f"grid cannot be read ({reason}) and the file has no grid "
+                                         "offsets, so the grids after it cannot be located",
+                                         self.path, name, cur.pos) from None
+                d["unparsed"] = True  # the last grid: nothing after it to find
             if selected:
                 result.skipped.append((name, reason))
             return
@@ -369,19 +383,19 @@ class _Reader:
             result.grids.append(g)
 
     def _skim(self, cur, d, reason):
-        """Parse a grid we do not read just far enough to find its end (stream files only)."""
+        """Parse a grid we do not read just far enough to find its end (stream files only).
+
+        False when its layout is unknown; raises when it does not parse."""
         at = cur.pos
         vt = _tree_value_type(d["type"])
         if vt not in codec.VALUE_TYPES and vt not in codec.LAYOUT_TYPES and not d["parent"]:
-            raise VDBFormatError(f"grid cannot be read ({reason}) and the file has no grid "
-                                 "offsets, so the grids after it cannot be located",
-                                 self.path, d["display"], at)
+            return False
         try:
             flags = cur.u32("compression flags")
             meta = read_metamap(cur, "grid metadata")
             read_transform(cur)
             if d["parent"]:
-                return  # an instance stores no tree
+                return True  # an instance stores no tree
             et = ElementType(vt, bool(meta.get("is_saved_as_half_float", False)) and vt in codec.VALUE_TYPES)
             topo = read_tree_topology(cur, flags, et)
             if vt == "bool":  # each leaf: value mask, origin, value bit mask
@@ -391,6 +405,7 @@ class _Reader:
                     raise cur.error("a bool leaf's buffer mask differs from its topology mask", at)
             else:
                 scan_leaves(cur, topo.leaf_masks, flags, et)
+            return True
         except _GRID_ERRORS as e:
             why = e.reason if isinstance(e, VDBFormatError) else f"{type(e).__name__}: {e}"
             raise VDBFormatError(f"grid cannot be read ({reason}) nor stepped over ({why}); the "
