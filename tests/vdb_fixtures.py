@@ -340,3 +340,137 @@ def build_oracle_file(path):
     half.saveFloatAsHalf = True
     ov.write(str(path), grids=[g, inst, s, d, v, dup, ids, flags, half])
     return path
+
+
+# ---- files shaped like real ones -------------------------------------------------------------
+# Each writer takes the path to write and returns it; the tests compare our reader with openvdb's.
+
+def _float_grid(ov, name, values, origin=(0, 0, 0)):
+    g = ov.FloatGrid()
+    g.name = name
+    g.gridClass = ov.GridClass.FOG_VOLUME
+    g.copyFromArray(np.ascontiguousarray(values, np.float32), ijk=tuple(origin))
+    return g
+
+
+def write_same_name_grids(path, count=3, name="density"):
+    """``count`` fog grids all named ``name`` (as simulation caches write them): grid k is a
+    (8 + 4k)^3 block of values k + 1 + a ramp, so each one's values and extent differ."""
+    ov = openvdb()
+    grids = []
+    for k in range(count):
+        n = 8 + 4 * k
+        ramp = np.arange(n ** 3, dtype=np.float32).reshape(n, n, n) / n ** 3
+        grids.append(_float_grid(ov, name, k + 1 + ramp, origin=(16 * k, 0, 0)))
+    ov.write(str(path), grids=grids)
+    return path
+
+
+def write_constant_fog(path, value, *, shape=(20, 16, 16), name="density", voxel_size=1.0):
+    """One fog grid whose active voxels all hold ``value``: the constant 8^3 blocks become active
+    tiles (as OpenVDB prunes them), the ragged x edge stays in leaves. Returns the path."""
+    ov = openvdb()
+    g = _float_grid(ov, name, np.full(shape, value, np.float32))
+    g.transform = ov.createLinearTransform(voxelSize=float(voxel_size))
+    ov.write(str(path), grids=[g])
+    return path
+
+
+def vec3_then_scalar_values(seed=3):
+    """The arrays write_vec3_then_scalar stores: velocity (20, 20, 16, 3), density (20, 20, 16)."""
+    rng = np.random.default_rng(seed)
+    return (rng.normal(size=(20, 20, 16, 3)).astype(np.float32),
+            (0.05 + rng.random((20, 20, 16))).astype(np.float32))
+
+
+def write_vec3_then_scalar(path):
+    """A vec3s 'velocity' grid followed by a float 'density' grid of 6,400 active voxels (the
+    order Mantaflow caches use). Returns the path."""
+    ov = openvdb()
+    vel, dens = vec3_then_scalar_values()
+    v = ov.Vec3SGrid()
+    v.name = "velocity"
+    v.copyFromArray(vel)
+    ov.write(str(path), grids=[v, _float_grid(ov, "density", dens)])
+    return path
+
+
+def write_empty_beside_full(path):
+    """An empty float grid 'flame' (0 active voxels, as Mantaflow writes for smoke without fire)
+    before a 10^3 fog grid 'density'. Returns the path."""
+    ov = openvdb()
+    empty = ov.FloatGrid()
+    empty.name = "flame"
+    empty.gridClass = ov.GridClass.FOG_VOLUME
+    dens = np.linspace(0.1, 1.0, 1000, dtype=np.float32).reshape(10, 10, 10)
+    ov.write(str(path), grids=[empty, _float_grid(ov, "density", dens, origin=(-3, 2, 5))])
+    return path
+
+
+def write_int_beside_float(path):
+    """An int32 grid 'ids' before a float grid 'density' (both 6^3). Returns the path."""
+    ov = openvdb()
+    ids = ov.Int32Grid()
+    ids.name = "ids"
+    ids.copyFromArray(np.arange(216, dtype=np.int32).reshape(6, 6, 6) + 1)
+    dens = np.linspace(0.5, 2.0, 216, dtype=np.float32).reshape(6, 6, 6)
+    ov.write(str(path), grids=[ids, _float_grid(ov, "density", dens)])
+    return path
+
+
+def _rewrite(src, dst, edit, *, offsets=True):
+    """Copy ``src`` (a file with grid offsets) grid by grid through ``edit(type_name, head, topology,
+    buffers) -> (head, topology, buffers)`` (byte strings; head = compression flags, metadata and
+    transform), writing fresh descriptor offsets, or none with ``offsets=False`` (a stream)."""
+    data = open(src, "rb").read()
+    cur = Cursor(data, str(src))
+    cur.skip(20)  # magic, file version, library version
+    flag_at = cur.pos
+    cur.skip(1 + 36)
+    read_metamap(cur)
+    count = cur.i32()
+    out = bytearray(data[:cur.pos])
+    out[flag_at] = 1 if offsets else 0
+    for _ in range(count):
+        unique, tname, parent = cur.string(), cur.string(), cur.string()
+        gpos, bpos, epos = cur.i64(), cur.i64(), cur.i64()
+        g = Cursor(data, str(src), gpos, epos)
+        g.u32()
+        _raw_metamap(g)
+        read_transform(g)
+        head, topo, bufs = edit(tname, data[gpos:g.pos], data[g.pos:bpos], data[bpos:epos])
+        desc = _pack_string(unique) + _pack_string(tname) + _pack_string(parent)
+        start = len(out) + len(desc) + 24
+        pos = (start, start + len(head) + len(topo), start + len(head) + len(topo) + len(bufs))
+        out += desc + struct.pack("<qqq", *(pos if offsets else (0, 0, 0))) + head + topo + bufs
+        cur.pos = epos
+    open(dst, "wb").write(bytes(out))
+    return dst
+
+
+def _strip_file_metadata(head):
+    """Drop the file_* grid metadata (bbox, voxel count) that only OpenVDB itself writes."""
+    c = Cursor(head, "head")
+    flags = c.u32()
+    meta = [e for e in _raw_metamap(c) if not e[0].startswith("file_")]
+    return struct.pack("<I", flags) + _metamap_bytes(meta) + head[c.pos:]
+
+
+def write_float_sized_vec3_root(src, dst, *, offsets=True):
+    """What a non-OpenVDB writer produced: ``src``'s vec3s grids with the root background and
+    root tile values stored as one float (4 bytes) instead of three, and no file_* metadata, with
+    the descriptor offsets fixed up to match (or none: a stream). Returns ``dst``."""
+    def edit(tname, head, topo, bufs):
+        head = _strip_file_metadata(head)
+        if "vec3s" not in tname:
+            return head, topo, bufs
+        c = Cursor(topo, "topology")
+        nbuf = c.i32()
+        bg = c.array("<f4", 3)
+        ntiles, nchild = c.u32(), c.u32()
+        root = [struct.pack("<i", nbuf), bg[:1].tobytes(), struct.pack("<II", ntiles, nchild)]
+        for _ in range(ntiles):
+            origin, value, active = bytes(c.bytes(12)), c.array("<f4", 3), c.u8()
+            root += [origin, value[:1].tobytes(), bytes([active])]
+        return head, b"".join(root) + topo[c.pos:], bufs
+    return _rewrite(src, dst, edit, offsets=offsets)

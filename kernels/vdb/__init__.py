@@ -2,6 +2,7 @@
 
     from kernels.vdb import read_vdb
     f = read_vdb("smoke.vdb")          # VDBFile: .version, .grids (GridData), .skipped
+    f = read_vdb("smoke.vdb", "density[1]")  # one grid: the second of those named density
 """
 
 from .errors import VDBFormatError

@@ -30,6 +30,10 @@ VALUE_TYPES = {
     "vec3d": ("<f8", 3),
 }
 
+# Value types parsed only to step over their grids (a stream file has no offsets to jump by): the
+# tree layout and codec are the same, only the value size differs. Bool leaves hold bit masks.
+LAYOUT_TYPES = {"int32": ("<i4", 1), "int64": ("<i8", 1), "bool": ("u1", 1)}
+
 HALF_LUT = np.arange(65536, dtype=np.uint16).view(np.float16).astype(np.float32)
 
 
@@ -48,7 +52,7 @@ class ElementType:
     """How one value of a grid is stored: full-precision dtype, stored dtype (half or not), components."""
 
     def __init__(self, value_type, half):
-        comp, self.ncomp = VALUE_TYPES[value_type]
+        comp, self.ncomp = VALUE_TYPES.get(value_type) or LAYOUT_TYPES[value_type]
         self.full = np.dtype(comp)
         self.stored = np.dtype("<f2") if half else self.full
         self.half = half

@@ -3,6 +3,7 @@
 import mmap
 import os
 import re
+import struct
 import warnings
 
 import numpy as np
@@ -39,6 +40,14 @@ _SKIP_REASONS = {
 
 class _Unsupported(Exception):
     """A grid the native reader will not read (reason in args[0]); skipped or sent to the fallback."""
+
+
+class _OverBudget(Exception):
+    """The memory limit (a VDBFormatError in args[0]): it refuses the whole read, never one grid."""
+
+
+# Data errors a garbled grid can raise besides VDBFormatError (which is a ValueError).
+_GRID_ERRORS = (ValueError, IndexError, OverflowError, struct.error)
 
 
 def _load(path):
@@ -88,12 +97,17 @@ def _descriptor(cur, version):
             "grid_pos": pos[0], "block_pos": pos[1], "end_pos": pos[2], "at": at}
 
 
-def _value_type(tname):
+def _tree_value_type(tname):
+    """'Tree_float_5_4_3[_HalfFloat]' -> 'float'; None for other tree configurations."""
     base = tname[:-len("_HalfFloat")] if tname.endswith("_HalfFloat") else tname
     m = _TYPE_RE.match(base)
-    if not m:
+    return m.group(1) if m else None
+
+
+def _value_type(tname):
+    vt = _tree_value_type(tname)
+    if vt is None:
         raise _Unsupported(f"tree type {tname!r}: only standard 5-4-3 trees are read")
-    vt = m.group(1)
     if vt not in codec.VALUE_TYPES:
         raise _Unsupported(_SKIP_REASONS.get(vt, f"value type {vt!r} is not supported"))
     return vt
@@ -183,6 +197,8 @@ class _Reader:
             tree = self.trees.get(d["parent"])
             if tree is None:
                 raise cur.error(f"instance of grid {d['parent']!r}, which was not read before it", start)
+            if self.has_offsets and cur.pos != cur.end:  # an instance stores no tree
+                raise cur.error(f"instance ends at byte {cur.pos}, its descriptor says {cur.end}")
         else:
             tree = self.tree(cur, flags, et, name, d)
         topo, values, vectors = tree
@@ -218,20 +234,23 @@ class _Reader:
 
     def tree(self, cur, flags, et, name, d):
         topo = read_tree_topology(cur, flags, et)
+        # The descriptor's offsets pin both ends: a grid that parses to other boundaries was
+        # misread (e.g. values of the wrong size), however plausible its counts look.
+        if self.has_offsets and cur.pos != d["block_pos"]:
+            raise cur.error(f"topology ends at byte {cur.pos}, the descriptor's block offset is "
+                            f"{d['block_pos']}")
+        table = scan_leaves(cur, topo.leaf_masks, flags, et)  # cheap (~2 ms a big file): always
+        topo.popc = table["popc"]
+        if self.has_offsets and cur.pos != cur.end:
+            raise cur.error(f"leaf data ends at byte {cur.pos}, the descriptor's end offset is {cur.end}")
         values = vectors = None
-        need_scan = not self.topology_only or not self.has_offsets
-        if need_scan:
-            table = scan_leaves(cur, topo.leaf_masks, flags, et)
-            topo.popc = table["popc"]
-            if self.has_offsets and cur.pos != cur.end:
-                raise cur.error(f"grid ends at byte {cur.pos}, its descriptor says {cur.end}")
         if not self.topology_only:
             need = estimate_grid_bytes(len(topo.leaf_origins), d["value_type"], et.half)
             if self.used_bytes + need > self.max_bytes:
-                raise VDBFormatError(
+                raise _OverBudget(VDBFormatError(
                     f"reading needs about {(self.used_bytes + need) / 2**20:.1f} MiB, above the "
                     f"limit of {self.max_bytes / 2**20:.1f} MiB (raise max_bytes to read it)",
-                    self.path, name, topo.start)
+                    self.path, name, topo.start))
             self.used_bytes += need
             mags = np.empty((len(topo.leaf_masks), 512), np.float32) if et.ncomp == 3 else None
             out = decode_leaves(cur, topo.leaf_masks, table, flags, et, topo.background, mags)
@@ -240,8 +259,6 @@ class _Reader:
             else:
                 vectors = out
                 values = mags  # float32 sqrt(x*x + y*y + z*z), computed in the decode pass
-        elif self.has_offsets:
-            cur.pos = cur.end
         tree = (topo, values, vectors)
         self.trees[d["unique"]] = tree
         return tree
@@ -267,28 +284,38 @@ class _Reader:
         wanted = None if grids is None else ([grids] if isinstance(grids, str) else list(grids))
         descs = []
         seen = {}
-        for _ in range(count):
+        for i in range(count):
             d = _descriptor(cur, version)
             k = seen.get(d["name"], 0)
             seen[d["name"]] = k + 1
-            d["display"] = d["name"] if k == 0 else f"{d['name']}[{k}]"
+            d["display"] = cur.grid = d["name"] if k == 0 else f"{d['name']}[{k}]"
+            d["last"] = i == count - 1
             if self.has_offsets:
-                if not (0 < d["grid_pos"] <= d["end_pos"] <= len(buf)):
+                if not (cur.pos <= d["grid_pos"] <= d["end_pos"] <= len(buf)):
                     raise cur.error(f"grid offsets {d['grid_pos']}..{d['end_pos']} lie outside the "
                                     f"file of {len(buf)} bytes", d["at"])
-                cur.pos = d["end_pos"]
+                cur.pos = d["end_pos"]  # the next descriptor follows this grid
             else:
-                self._stream_grid(cur, d, version, result, wanted)
-                if d.get("stop"):
-                    break
+                # Nothing pins a stream grid's end but the next descriptor and the end of the file:
+                # a grid misread to a wrong length shows up there, so blame it.
+                if not d["type"].startswith("Tree_"):
+                    raise VDBFormatError(
+                        f"garbled grid descriptor (type {d['type'][:40]!r})"
+                        + (f": grid {descs[-1]['display']!r} before it was misread" if descs else ""),
+                        self.path, descs[-1]["display"] if descs else None, d["at"])
+                self._one(cur, d, version, result, wanted)  # parse it to find the next one
             descs.append(d)
         if self.has_offsets:
             self._offset_grids(buf, descs, version, result, wanted)
+        elif descs and not descs[-1].get("unparsed") and cur.pos != len(buf):
+            raise VDBFormatError(f"{len(buf) - cur.pos} bytes follow the last grid: a grid was "
+                                 "misread", self.path, descs[-1]["display"], cur.pos)
         self._check_wanted(wanted, descs, result)
         return result
 
     def _selected(self, d, wanted):
-        return wanted is None or d["name"] in wanted or d["display"] in wanted or d["unique"] in wanted
+        # A plain name picks its first grid only; duplicates are asked for as name[1], name[2].
+        return wanted is None or d["display"] in wanted or d["unique"] in wanted
 
     def _offset_grids(self, buf, descs, version, result, wanted):
         by_unique = {d["unique"]: d for d in descs}
@@ -303,18 +330,19 @@ class _Reader:
         for d in descs:
             if d["unique"] not in needed:
                 continue
-            cur = Cursor(buf, self.path, d["grid_pos"], d["end_pos"], d["name"], arr=None)
+            cur = Cursor(buf, self.path, d["grid_pos"], d["end_pos"], d["display"], arr=None)
             self._one(cur, d, version, result, wanted)
 
-    def _stream_grid(self, cur, d, version, result, wanted):
-        # Without offsets every grid body follows its descriptor: parse it to find the next one.
-        cur.grid = d["name"]
-        self._one(cur, d, version, result, wanted)
-        if d.get("skipped_unreadable"):
-            d["stop"] = True
-
     def _one(self, cur, d, version, result, wanted):
+        """Read one grid into result.grids, or list it in result.skipped with the reason.
+
+        With grid offsets a grid that does not parse consistently is skipped with a warning and
+        the others are still read; without them the grids after it cannot be located, so the file
+        is refused. A grid asked for by name is never skipped: it reads or raises.
+        """
         selected = self._selected(d, wanted)
+        requested = wanted is not None and selected
+        name = d["display"]
         try:
             d["value_type"] = _value_type(d["type"])
             if d["parent"] and d["parent"] not in self.trees:
@@ -324,28 +352,70 @@ class _Reader:
             g = self.grid(cur, d, version)
         except _Unsupported as e:
             reason = str(e.args[0])
-            if wanted is not None and selected:
-                raise VDBFormatError(f"grid cannot be read: {reason}", self.path, d["display"],
-                                     cur.pos) from None
-            if not self.has_offsets:
-                reason += "; the file has no grid offsets, so the grids after it are not listed"
-                d["skipped_unreadable"] = True
+            if requested:
+                raise VDBFormatError(f"grid cannot be read: {reason}", self.path, name, cur.pos) from None
+            if not self.has_offsets and not self._skim(cur, d, reason):  # find where it ends
+                if not d["last"]:
+                    raise VDBFormatError(f"grid cannot be read ({reason}) and the file has no grid "
+                                         "offsets, so the grids after it cannot be located",
+                                         self.path, name, cur.pos) from None
+                d["unparsed"] = True  # the last grid: nothing after it to find
             if selected:
-                result.skipped.append((d["display"], reason))
+                result.skipped.append((name, reason))
             return
-        except VDBFormatError as e:
-            if "NonlinearFrustumMap" in e.reason and not (wanted is not None and selected) \
-                    and self.has_offsets:
-                result.skipped.append((d["display"], e.reason))
+        except _OverBudget as e:
+            raise e.args[0] from None
+        except _GRID_ERRORS as e:
+            err = e if isinstance(e, VDBFormatError) else \
+                VDBFormatError(f"malformed grid: {type(e).__name__}: {e}", self.path, name, cur.pos)
+            if not self.has_offsets or requested:
+                raise VDBFormatError(err.reason, self.path, name, err.offset) from e
+            if "NonlinearFrustumMap" in err.reason:  # unsupported, not broken
+                result.skipped.append((name, err.reason))
                 return
-            raise
+            reason = f"malformed, not read: {err.reason} (byte offset {err.offset})"
+            warnings.warn(f"{self.path}: grid {name!r} {reason}; the other grids were read",
+                          stacklevel=6)  # the caller of read_vdb
+            if selected:
+                result.skipped.append((name, reason))
+            return
         if selected:
             result.grids.append(g)
+
+    def _skim(self, cur, d, reason):
+        """Parse a grid we do not read just far enough to find its end (stream files only).
+
+        False when its layout is unknown; raises when it does not parse."""
+        at = cur.pos
+        vt = _tree_value_type(d["type"])
+        if vt not in codec.VALUE_TYPES and vt not in codec.LAYOUT_TYPES and not d["parent"]:
+            return False
+        try:
+            flags = cur.u32("compression flags")
+            meta = read_metamap(cur, "grid metadata")
+            read_transform(cur)
+            if d["parent"]:
+                return True  # an instance stores no tree
+            et = ElementType(vt, bool(meta.get("is_saved_as_half_float", False)) and vt in codec.VALUE_TYPES)
+            topo = read_tree_topology(cur, flags, et)
+            if vt == "bool":  # each leaf: value mask, origin, value bit mask
+                n = len(topo.leaf_masks)
+                leaves = cur.array(np.uint8, n * 140, "bool leaf buffers").reshape(n, 140)
+                if not np.array_equal(leaves[:, :64], topo.leaf_masks):
+                    raise cur.error("a bool leaf's buffer mask differs from its topology mask", at)
+            else:
+                scan_leaves(cur, topo.leaf_masks, flags, et)
+            return True
+        except _GRID_ERRORS as e:
+            why = e.reason if isinstance(e, VDBFormatError) else f"{type(e).__name__}: {e}"
+            raise VDBFormatError(f"grid cannot be read ({reason}) nor stepped over ({why}); the "
+                                 "file has no grid offsets, so the grids after it cannot be located",
+                                 self.path, d["display"], at) from None
 
     def _check_wanted(self, wanted, descs, result):
         if wanted is None:
             return
-        names = {n for d in descs for n in (d["name"], d["display"], d["unique"])}
+        names = {n for d in descs for n in (d["display"], d["unique"])}
         for w in wanted:
             if w not in names:
                 listed = ", ".join(repr(d["display"]) for d in descs) or "none"
@@ -364,7 +434,14 @@ class _Reader:
 def read_vdb(path, grids=None, *, topology_only=False, max_bytes=None, allow_fallback=True):
     """Read the grids of a .vdb file (all, or those named in ``grids``) into GridData.
 
-    Raises VDBFormatError (file, grid and byte offset in the message) on anything it cannot read.
+    ``grids``: a name or a list of names. A name selects exactly one grid: ``"density"`` the first
+    grid called density, ``"density[1]"`` the second, ``"density[2]"`` the third (the names the
+    result reports). An unknown name raises VDBFormatError listing the grids there are.
+    Grids that cannot be read are listed in ``.skipped`` as (name, reason): int, bool and point
+    grids, and, in files with grid offsets, a malformed grid (also warned about) whose
+    neighbours are still read. A requested grid that cannot be read, a malformed grid in a file
+    without grid offsets, or anything else wrong raises VDBFormatError (file, grid and byte offset
+    in the message).
     """
     try:
         return _Reader(path, topology_only, max_bytes).read(grids, allow_fallback)
