@@ -9,8 +9,6 @@ import json
 import math
 import os
 import shutil
-import subprocess
-import sys
 
 import pytest
 from conftest import SAMPLE, run_cli

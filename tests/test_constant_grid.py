@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 from test_engine_helpers import add_camera, setup_render
-from vdb_fixtures import openvdb, write_grid
+from vdb_fixtures import openvdb, write_constant_fog
 
 N = 24  # voxels per side: 3 x 3 x 3 leaves
 W = H = 48
@@ -19,7 +19,7 @@ def write_constant(path, value, layout):
     """N^3 active voxels of ``value``: as 27 leaf-sized active tiles (what copyFromArray and
     pruning write) or as 27 dense leaves (voxel by voxel)."""
     if layout == "tiles":
-        return write_grid(path, np.full((N, N, N), value, np.float32))
+        return write_constant_fog(path, value, shape=(N, N, N))
     ov = openvdb()
     g = ov.FloatGrid()
     g.name = "density"
