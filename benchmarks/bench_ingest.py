@@ -3,13 +3,14 @@
     python benchmarks/bench_ingest.py [--data DIR] [--repeat N]
 """
 
-import argparse
-import glob
 import os
 import sys
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tools"))
+
+import cli_errors  # noqa: E402  (after the sys.path set-up above)
 
 
 def best(fn, repeat):
@@ -23,17 +24,17 @@ def best(fn, repeat):
 
 def main(argv=None):
     here = os.path.dirname(os.path.abspath(__file__))
-    ap = argparse.ArgumentParser(prog="bench_ingest")
+    ap = cli_errors.ArgumentParser(prog="gaussvdb bench ingest")
     ap.add_argument("--data", default=os.path.join(here, "..", "..", "shared", "data"))
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--repeat", type=cli_errors.positive_int, default=5)
     args = ap.parse_args(argv)
+    files = cli_errors.vdb_folder(args.data)
     import bpy
 
     from kernels.vdb import read_topology, read_vdb
     bpy.utils.expose_bundled_modules()
     import openvdb
 
-    files = sorted(glob.glob(os.path.join(args.data, "*.vdb")))
     read_vdb(files[0])  # numba warm-up (compiled functions are cached on disk)
     print(f"{'file':34} {'active':>11} {'ours s':>8} {'binding s':>9} {'ratio':>6} "
           f"{'Mvox/s':>7} {'topo s':>7}")
@@ -52,4 +53,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_errors.run("gaussvdb bench ingest", main, sys.argv[1:]))

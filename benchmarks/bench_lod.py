@@ -10,7 +10,6 @@ DIR defaults to ../shared/data relative to the repository root.
 """
 from __future__ import annotations
 
-import argparse
 import glob
 import json
 import os
@@ -18,8 +17,11 @@ import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-if ROOT not in sys.path:
-    sys.path.insert(0, ROOT)
+for _p in (ROOT, os.path.join(ROOT, "tools")):
+    if _p not in sys.path:
+        sys.path.insert(0, _p)
+
+import cli_errors  # noqa: E402  (after the sys.path set-up above)
 
 
 def _best(fn, repeat):
@@ -96,23 +98,21 @@ def fmt_row(r):
 
 
 def main(argv=None) -> int:
-    from kernels.lod import PRESETS
+    from kernels.lod import PRESETS, WEIGHTS
 
-    ap = argparse.ArgumentParser(prog="gaussvdb bench lod", description="LOD table over a data folder")
+    ap = cli_errors.ArgumentParser(prog="gaussvdb bench lod", description="LOD table over a data folder")
     ap.add_argument("--data", default=os.path.join(os.path.dirname(ROOT), "shared", "data"))
-    ap.add_argument("--presets", default=",".join(PRESETS))
-    ap.add_argument("--weights", default="field", choices=("field", "paper"))
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--presets", default=list(PRESETS), type=cli_errors.names(PRESETS))
+    ap.add_argument("--weights", default="field", choices=WEIGHTS)
+    ap.add_argument("--repeat", type=cli_errors.positive_int, default=3)
     ap.add_argument("--files", help="comma-separated substrings of file names")
     ap.add_argument("--no-error", action="store_true")
     ap.add_argument("--json", help="also write the rows to this JSON file")
     a = ap.parse_args(argv)
-    if not os.path.isdir(a.data):
-        print(f"bench lod: no data folder {a.data}", file=sys.stderr)
-        return 2
+    cli_errors.vdb_folder(a.data)  # a missing or empty folder is refused before the warm-up
     warm_up()
     print(HEADER, flush=True)
-    rows = run(a.data, a.presets.split(","), a.weights, a.repeat, not a.no_error,
+    rows = run(a.data, a.presets, a.weights, a.repeat, not a.no_error,
                a.files.split(",") if a.files else None)
     print_file_totals(rows)
     if a.json:
@@ -134,4 +134,4 @@ def print_file_totals(rows):
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(cli_errors.run("gaussvdb bench lod", main, sys.argv[1:]))

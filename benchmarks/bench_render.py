@@ -20,8 +20,12 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tools"))
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction  # noqa: E402
+import cli_errors  # noqa: E402  (after the sys.path set-up above)
+
+from kernels.lod import PRESETS  # noqa: E402
+from kernels.render import MODES, Camera, CPUDevice, RenderObject, RenderScene, TransferFunction  # noqa: E402
 
 
 def load(path, lod):
@@ -60,14 +64,16 @@ def world_box(grid, m):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = cli_errors.ArgumentParser(prog="gaussvdb bench render", description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("paths", nargs="*")
-    ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--modes", default="particles,field,reference")
-    ap.add_argument("--lod", default="medium")
-    ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--threads", default="1,2")
-    ap.add_argument("--density", type=float, default=None, help="extinction per world unit (default 4 / box size)")
+    ap.add_argument("--size", type=cli_errors.positive_int, default=512)
+    ap.add_argument("--modes", default=["particles", "field", "reference"], type=cli_errors.names(MODES))
+    ap.add_argument("--lod", default="medium", choices=PRESETS)
+    ap.add_argument("--repeat", type=cli_errors.positive_int, default=2)
+    ap.add_argument("--threads", default=[1, 2], type=cli_errors.positive_ints)
+    ap.add_argument("--density", type=cli_errors.nonnegative, default=None,
+                    help="extinction per world unit (default 4 / box size)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -82,7 +88,7 @@ def main(argv=None):
         print("no .vdb files: using a synthetic 64^3 blob (say so when quoting these figures)")
         g, gs = synthetic()
         cases.append(("synthetic", g, gs, 0.0))
-    threads = [int(t) for t in a.threads.split(",")]
+    threads = a.threads
     dev = CPUDevice()
     rows = []
     for name, g, gs, tl in cases:
@@ -99,7 +105,7 @@ def main(argv=None):
         print(f"{name}: {g.grid_class}, {int(np.asarray(gs.group_start)[-1])} Gaussians "
               f"({a.lod}, built in {tl:.2f} s), "
               f"{len(g.leaf_origins)} leaves, {a.size}x{a.size}")
-        for mode in a.modes.split(","):
+        for mode in a.modes:
             sc = RenderScene([RenderObject(gs, m, grid=g, is_level_set=is_ls)], mode=mode)
             dev.sync(sc)
             sync_s = dev.stats["seconds_sync"]
@@ -132,4 +138,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_errors.run("gaussvdb bench render", main, sys.argv[1:]))

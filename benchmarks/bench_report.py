@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import glob
 import json
 import math
 import os
@@ -43,11 +42,12 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-for _p in (ROOT, HERE):
+for _p in (ROOT, HERE, os.path.join(ROOT, "tools")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
-from bench_lod import warm_up  # noqa: E402  (after the sys.path set-up above)
+import cli_errors  # noqa: E402  (after the sys.path set-up above)
+from bench_lod import warm_up  # noqa: E402
 from bench_render import world_box  # noqa: E402
 from metrics import image_errors, time_to_reach, to_display  # noqa: E402
 
@@ -97,43 +97,35 @@ def parse(argv):
     from kernels.lod import PRESETS
     from kernels.render import MODES
 
-    ap = argparse.ArgumentParser(prog="gaussvdb bench", description=__doc__.split("\n\n")[1],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = cli_errors.ArgumentParser(prog="gaussvdb bench", description=__doc__.split("\n\n")[1],
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=os.path.join(os.path.dirname(ROOT), "shared", "data"))
-    ap.add_argument("--size", default=None, help="WxH (default 512x512; --quick 128x128)")
+    ap.add_argument("--size", default=None, type=cli_errors.size, help="WxH (default 512x512; --quick 128x128)")
     ap.add_argument("--out", default=None, help="output folder (default out/bench, --quick out/bench_quick)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--files", help="comma-separated substrings of file names")
     ap.add_argument("--grids", help="comma-separated grid names")
-    ap.add_argument("--lods", default=None, help=f"comma-separated presets (default {','.join(PRESETS)})")
-    ap.add_argument("--modes", default=",".join(MODES))
-    ap.add_argument("--samples", default=None, help="Cycles sample counts (default 1,4,16,64,256; quick 4,16)")
+    ap.add_argument("--lods", default=None, type=cli_errors.names(PRESETS),
+                    help=f"comma-separated presets (default {','.join(PRESETS)})")
+    ap.add_argument("--modes", default=list(MODES), type=cli_errors.names(MODES))
+    ap.add_argument("--samples", default=None, type=cli_errors.positive_ints,
+                    help="Cycles sample counts (default 1,4,16,64,256; quick 4,16)")
     ap.add_argument("--no-cycles", action="store_true")
     ap.add_argument("--cycles-biased", action="store_true", help="Cycles' biased ray-marching volumes")
-    ap.add_argument("--density", type=float, default=10.0, help="optical depth across the box diagonal")
-    ap.add_argument("--threads", type=int, default=0, help="CPU threads for both renderers (0: all)")
+    ap.add_argument("--density", type=cli_errors.nonnegative, default=10.0,
+                    help="optical depth across the box diagonal")
+    ap.add_argument("--threads", type=cli_errors.threads, default=0,
+                    help="CPU threads for both renderers (0: all)")
     a = ap.parse_args(argv)
-    size = a.size or ("128x128" if a.quick else "512x512")
-    try:
-        a.width, a.height = (int(v) for v in size.lower().split("x"))
-        assert a.width > 0 and a.height > 0
-    except (ValueError, AssertionError):
-        ap.error(f"--size must look like 512x512, not {size!r}")
-    a.lods = (a.lods.split(",") if a.lods else (["low", "high"] if a.quick else list(PRESETS)))
-    a.modes = a.modes.split(",")
-    a.samples = [int(s) for s in (a.samples or ("4,16" if a.quick else "1,4,16,64,256")).split(",")]
+    a.width, a.height = a.size or ((128, 128) if a.quick else (512, 512))
+    a.lods = a.lods or (["low", "high"] if a.quick else list(PRESETS))
+    a.samples = a.samples or ([4, 16] if a.quick else [1, 4, 16, 64, 256])
     a.out = os.path.abspath(a.out or os.path.join(ROOT, "out", "bench_quick" if a.quick else "bench"))
-    for m in a.modes:
-        if m not in MODES:
-            ap.error(f"unknown mode {m!r}; have {MODES}")
-    for p in a.lods:
-        if p not in PRESETS:
-            ap.error(f"unknown LOD {p!r}; have {PRESETS}")
     return a
 
 
 def pick_files(a):
-    paths = sorted(glob.glob(os.path.join(a.data, "*.vdb")))
+    paths = cli_errors.vdb_folder(a.data)
     if a.files:
         paths = [p for p in paths if any(f in os.path.basename(p) for f in a.files.split(","))]
     if a.quick and len(paths) > 1:
@@ -261,7 +253,7 @@ def run(a):
 
     paths = pick_files(a)
     if not paths:
-        raise SystemExit(f"gaussvdb bench: no .vdb files in {a.data}")
+        raise cli_errors.InputError(f"no .vdb file in {a.data} matches --files {a.files}")
     todo, skipped = plan(a, paths)
     gmodes = [m for m in a.modes if m != "reference"]
     n_grids = sum(len(n) for _, n in todo)
@@ -540,9 +532,7 @@ def _slug(ds):
 
 def main(argv=None) -> int:
     a = parse(argv if argv is not None else sys.argv[1:])
-    if not os.path.isdir(a.data):
-        print(f"gaussvdb bench: no data folder {a.data}", file=sys.stderr)
-        return 2
+    cli_errors.vdb_folder(a.data)  # before any work: a missing or empty folder is refused here
     os.makedirs(a.out, exist_ok=True)
     meta, rows, skipped, sheets = run(a)
     meta["command"] = "./gaussvdb bench " + " ".join(argv if argv is not None else sys.argv[1:])
@@ -560,4 +550,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_errors.run("gaussvdb bench", main, sys.argv[1:]))

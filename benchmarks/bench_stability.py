@@ -7,16 +7,17 @@ and PASS/FAIL (FAIL rows are known bugs, see the xfail marks in the tests).
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-for p in (ROOT, os.path.join(ROOT, "tests")):
+for p in (ROOT, os.path.join(ROOT, "tests"), os.path.join(ROOT, "tools")):
     if p not in sys.path:
         sys.path.insert(0, p)
+
+import cli_errors  # noqa: E402  (after the sys.path set-up above)
 
 
 def _nan_inf_row():
@@ -43,7 +44,7 @@ def _nan_inf_row():
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="gaussvdb bench stability", description=__doc__.split("\n")[0])
+    ap = cli_errors.ArgumentParser(prog="gaussvdb bench stability", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="the test-suite sizes only")
     a = ap.parse_args(argv or [])
     import numpy as np
@@ -126,4 +127,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(cli_errors.run("gaussvdb bench stability", main, sys.argv[1:]))

@@ -1,4 +1,5 @@
-"""The `./gaussvdb` subcommands. Each lives in tools/cmd_<name>.py with a `main(argv) -> int`."""
+"""The `./gaussvdb` subcommands. Each lives in tools/cmd_<name>.py with a `main(argv) -> int`;
+refusals become one line and an exit status here (tools/cli_errors.py)."""
 
 import importlib
 import os
@@ -24,18 +25,23 @@ def usage() -> str:
 
 
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] in ("-h", "--help", "help"):
-        print(usage())
-        return 0
-    name, rest = argv[0], argv[1:]
-    if name not in COMMANDS:
-        print(f"gaussvdb: unknown command {name!r}\n\n{usage()}", file=sys.stderr)
-        return 2
     # The repository root is the extension's source root: `kernels` imports from here.
     sys.path.insert(0, ROOT)
     sys.path.insert(1, os.path.join(ROOT, "tools"))
-    module = importlib.import_module(f"cmd_{name}")
-    return int(module.main(rest) or 0)
+    import cli_errors
+
+    args, _ = cli_errors.take_debug(argv)
+    if not args or args[0] in ("-h", "--help", "help"):
+        print(usage())
+        return 0
+    name = args[0]
+    if name not in COMMANDS:
+        print(f"gaussvdb: unknown command {name!r} (commands: {', '.join(COMMANDS)}; "
+              "./gaussvdb help)", file=sys.stderr)
+        return 2
+    rest = argv[argv.index(name) + 1:]  # --debug stays in: run() takes it out again
+    return cli_errors.run(f"gaussvdb {name}",
+                          lambda a: importlib.import_module(f"cmd_{name}").main(a), rest)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,8 @@
 
 import importlib.util
 import os
-import sys
+
+from cli_errors import InputError, UsageError
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BENCH_DIR = os.path.join(ROOT, "benchmarks")
@@ -18,10 +19,13 @@ def main(argv: list[str]) -> int:
     if argv and not argv[0].startswith("-"):
         name, argv = argv[0], argv[1:]
     if name not in available():
-        print(f"gaussvdb bench: no benchmark {name!r}; have: {', '.join(available())}", file=sys.stderr)
-        return 2
+        raise UsageError(f"no benchmark {name!r}; have: {', '.join(available())}")
     path = os.path.join(BENCH_DIR, f"bench_{name}.py")
     spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return int(module.main(argv) or 0)
+    try:
+        return int(module.main(argv) or 0)
+    except InputError as err:  # the line names the benchmark
+        err.prog = err.prog or ("gaussvdb bench" if name == "report" else f"gaussvdb bench {name}")
+        raise

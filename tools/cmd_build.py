@@ -13,6 +13,10 @@ import subprocess
 import sys
 import tomllib
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
+
+import cli_errors  # noqa: E402
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MANIFEST = "blender_manifest.toml"
 
@@ -111,9 +115,15 @@ def build(platforms=None, pythons=None, out_dir=None) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="gaussvdb build", description=__doc__)
-    parser.add_argument("--platform", action="append", help="linux-x64, macos-arm64, macos-x64, windows-x64")
-    parser.add_argument("--python", action="append", help="cp311 or cp313 (default: both)")
+    with open(os.path.join(ROOT, MANIFEST), "rb") as f:
+        manifest = tomllib.load(f)
+    pythons = sorted({w["py"] for w in parse_wheels(manifest)})
+    parser = cli_errors.ArgumentParser(prog="gaussvdb build", description=__doc__,
+                                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--platform", action="append", choices=manifest["platforms"],
+                        help="one of the manifest's platforms (default: all)")
+    parser.add_argument("--python", action="append", choices=pythons,
+                        help=f"{' or '.join(pythons)} (default: all)")
     parser.add_argument("--out", help="output folder (default dist/)")
     args = parser.parse_args(argv)
     for z in build(args.platform, args.python, args.out):

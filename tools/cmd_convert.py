@@ -1,34 +1,35 @@
-"""`./gaussvdb convert FILE.vdb [--grid G] --lod PRESET [--weights paper|field] [--out F.npz] [--json]`
+"""`./gaussvdb convert FILE.vdb [--grid G] [--vector-magnitude] --lod PRESET [--weights paper|field]
+[--out F.npz] [--json]`
 
-Reads one grid, builds its Gaussians, measures the field error and prints one JSON object
-(indented; one line with --json). --out writes the compact encoding (kernels.lod.encode_compact)
-as an .npz that kernels.lod.decode_compact reads back.
+Reads one grid (default: the first scalar grid with active voxels), builds its Gaussians,
+measures the field error and prints one JSON object (indented; one line with --json). --out
+writes the compact encoding (kernels.lod.encode_compact) as an .npz that kernels.lod.decode_compact
+reads back. A refusal is one line on stderr (tools/cli_errors.py).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 import time
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
+
+import cli_errors  # noqa: E402
+
 
 def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=True, error=True,
-            out=None, **thresholds) -> dict:
+            out=None, vector_magnitude=False, **thresholds) -> dict:
+    import cli_grids
     import numpy as np
 
     from kernels.lod import build_lod, encode_compact, encoded_nbytes, field_error, paper_model_bytes
     from kernels.vdb import read_vdb, sanitize_nonfinite
 
+    name = cli_grids.choose_grid(path, grid, vector_magnitude)
     t0 = time.perf_counter()
-    vdb = read_vdb(path, grids=[grid] if grid else None)
+    g = read_vdb(path, grids=[name]).grids[0]
     seconds_read = time.perf_counter() - t0
-    grids = [g for g in vdb.grids if grid is None or g.name == grid]
-    if not grids:
-        raise SystemExit(f"gaussvdb convert: no grid {grid!r} in {path}")
-    if grid is None:  # first grid with active voxels, else the first one
-        grids = [g for g in grids if g.active_voxels] or grids
-    g = grids[0]
     nonfinite = sanitize_nonfinite(g)  # NaN/Inf voxels become inactive (reported below)
     if nonfinite:
         print(f"gaussvdb convert: warning: {nonfinite:,} NaN/Inf voxels of grid {g.name!r} made inactive",
@@ -67,9 +68,11 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
 def main(argv: list[str]) -> int:
     from kernels.lod import DEFAULTS, PRESETS, WEIGHTS
 
-    ap = argparse.ArgumentParser(prog="gaussvdb convert", description=__doc__.splitlines()[0])
+    ap = cli_errors.ArgumentParser(prog="gaussvdb convert", description=__doc__.split("\n\n")[1])
     ap.add_argument("file")
-    ap.add_argument("--grid", help="grid name (default: the first grid with active voxels)")
+    ap.add_argument("--grid", help="grid name (default: the first scalar grid with active voxels)")
+    ap.add_argument("--vector-magnitude", action="store_true",
+                    help="vec3 grids (velocity) count as their magnitude, as in the importer")
     ap.add_argument("--lod", choices=PRESETS, default="medium")
     ap.add_argument("--weights", choices=WEIGHTS, default="field")
     ap.add_argument("--out", help="write the compact encoding to this .npz")
@@ -77,7 +80,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--no-band", action="store_true",
                     help="level sets: keep the whole narrow band, not only the zero-crossing shell")
     ap.add_argument("--no-error", action="store_true", help="skip the field error")
-    ap.add_argument("--threads", type=int, help="numba threads")
+    ap.add_argument("--threads", type=cli_errors.threads, help="numba threads (0: all)")
     for k, v in DEFAULTS.items():
         ap.add_argument("--" + k.replace("_", "-"), type=type(v), default=None,
                         help=f"threshold (default {v})")
@@ -86,21 +89,12 @@ def main(argv: list[str]) -> int:
         import numba
         numba.set_num_threads(a.threads)
     th = {k: getattr(a, k) for k in DEFAULTS if getattr(a, k) is not None}
-    try:
-        res = convert(a.file, a.grid, a.lod, a.weights, level_set_band=not a.no_band,
-                      error=not a.no_error, out=a.out, **th)
-    except OSError as e:
-        print(f"gaussvdb convert: {e}", file=sys.stderr)
-        return 1
-    except Exception as e:  # VDBFormatError and friends: one line, no traceback
-        if type(e).__name__ == "VDBFormatError":
-            print(f"gaussvdb convert: {e}", file=sys.stderr)
-            return 1
-        raise
+    res = convert(a.file, a.grid, a.lod, a.weights, level_set_band=not a.no_band,
+                  error=not a.no_error, out=a.out, vector_magnitude=a.vector_magnitude, **th)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0
 
 
 if __name__ == "__main__":
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(cli_errors.run("gaussvdb convert", main, sys.argv[1:]))

@@ -14,17 +14,29 @@ import os
 import sys
 import time
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
+
+import cli_errors  # noqa: E402
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
 
 
+def png_size(text):
+    """--size: WxH, or 0 for no renders."""
+    return None if text == "0" else cli_errors.size(text)
+
+
 def parse(argv):
-    ap = argparse.ArgumentParser(prog="gaussvdb demo", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    from kernels.lod import WEIGHTS
+
+    ap = cli_errors.ArgumentParser(prog="gaussvdb demo", description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--file", default=SAMPLE, help="a .vdb file (default: the bundled sample)")
     ap.add_argument("--grids", default="", help="comma-separated grid names (default: every scalar grid)")
-    ap.add_argument("--weights", default="field", choices=("field", "paper"))
-    ap.add_argument("--size", default="320x240", help="PNG size WxH of the renders (0: no renders)")
+    ap.add_argument("--weights", default="field", choices=WEIGHTS)
+    ap.add_argument("--size", default=(320, 240), type=png_size,
+                    help="PNG size WxH of the renders (0: no renders)")
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "demo"), help="folder for the PNGs")
     ap.add_argument("--json", action="store_true", help="print the table as JSON")
     return ap.parse_args(argv)
@@ -32,7 +44,7 @@ def parse(argv):
 
 def render_pngs(bpy, objs, args) -> list:
     """Render the first imported grid at every LOD it holds (particles mode, viridis); returns paths."""
-    if args.size == "0" or not objs:
+    if args.size is None or not objs:
         return []
     import cmd_render
     from blender_session import addon_module
@@ -41,7 +53,7 @@ def render_pngs(bpy, objs, args) -> list:
     obj = objs[0]
     for other in objs[1:]:
         other.hide_render = True
-    width, height = (int(v) for v in args.size.lower().split("x"))
+    width, height = args.size
     opts = argparse.Namespace(width=width, height=height, transparent=False, mode="particles",
                               colormap="viridis", threads=0, density=None, lod=obj.gaussvdb.render_lod)
     scene = cmd_render.build_scene(bpy, [obj], opts)
@@ -50,13 +62,13 @@ def render_pngs(bpy, objs, args) -> list:
     r = scene.render
     r.resolution_x, r.resolution_y = 16, 12
     t0 = time.perf_counter()
-    final_render.render_scene_to_file(scene, os.path.join(os.path.abspath(args.out), "warmup.png"))
+    cmd_render.quiet_render(final_render, scene, os.path.join(os.path.abspath(args.out), "warmup.png"))
     paths = [f"(render warm-up {time.perf_counter() - t0:.2f} s: kernels loaded or compiled)"]
     r.resolution_x, r.resolution_y = width, height
     for name in importer_lods(obj):
         obj.gaussvdb.render_lod = name
         path = os.path.join(os.path.abspath(args.out), f"{obj.gaussvdb.grid_name}_{name}.png")
-        stats = final_render.render_scene_to_file(scene, path)
+        stats = cmd_render.quiet_render(final_render, scene, path)
         paths.append(f"{path} ({stats.get('gaussians', 0):,} Gaussians, "
                      f"{stats.get('seconds_render', 0.0):.2f} s)")
     return paths
@@ -76,14 +88,17 @@ def run(args) -> dict:
     bpy.ops.wm.read_homefile(use_empty=True)
     path = os.path.abspath(args.file)
     grids = importer.split_names(args.grids)
-    t0 = time.perf_counter()  # warm-up: numba loads (or, on a first run, compiles) its kernels
-    importer.convert_file(path, grids=grids or None, lods=("low",), weights=args.weights)
-    warmup = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    skipped = []
-    objs = importer.import_vdb(path, grids=grids, lods=lod.PRESETS, weights=args.weights,
-                               collection=bpy.context.scene.collection, skipped=skipped)
-    total = time.perf_counter() - t0
+    try:
+        t0 = time.perf_counter()  # warm-up: numba loads (or, on a first run, compiles) its kernels
+        importer.convert_file(path, grids=grids or None, lods=("low",), weights=args.weights)
+        warmup = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        skipped = []
+        objs = importer.import_vdb(path, grids=grids, lods=lod.PRESETS, weights=args.weights,
+                                   collection=bpy.context.scene.collection, skipped=skipped)
+        total = time.perf_counter() - t0
+    except importer.ImportError_ as err:
+        raise cli_errors.InputError(f"{args.file}: {err}") from err
     rows = []
     for obj in objs:
         for s in importer.object_stats(obj):
@@ -128,13 +143,14 @@ def table(result) -> str:
 
 def main(argv) -> int:
     args = parse(argv)
-    if not os.path.isfile(args.file):
-        print(f"gaussvdb demo: no such file {args.file}", file=sys.stderr)
-        return 2
+    from kernels.vdb import read_topology
+
+    read_topology(args.file)  # a missing or unreadable file is refused before Blender starts
     result = run(args)
     print(json.dumps(result, indent=1, default=str) if args.json else table(result))
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.path.insert(0, ROOT)
+    sys.exit(cli_errors.run("gaussvdb demo", main, sys.argv[1:]))

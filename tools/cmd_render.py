@@ -1,61 +1,56 @@
-"""`./gaussvdb render FILE.vdb [--grid G] [--lod PRESET] [--mode particles|field|paper|reference]
-[--colormap NAME] [--size WxH] [--out IMG.png|.exr] [--threads N] [--density D] [--json]`
+"""`./gaussvdb render FILE.vdb [--grid G] [--vector-magnitude] [--lod PRESET]
+[--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
+[--threads N] [--density D] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
 (``bpy.ops.render.render(write_still=True)``) and writes the image. Prints a summary, or with
 --json one JSON line: seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
-threads, lod, grid, colormap, out. Exit status 1 with the engine's message when the render fails.
+threads, lod, grid, colormap, out. Options and the grid are checked before Blender starts; a
+refusal or a failed render is one line on stderr (tools/cli_errors.py).
 """
 from __future__ import annotations
 
-import argparse
+import contextlib
+import io
 import json
 import math
 import os
 import sys
 import time
 
-MODES = ("particles", "field", "paper", "reference")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
+
+import cli_errors  # noqa: E402
+from cli_errors import InputError, UsageError  # noqa: E402
+
 VIEW = (0.35, 1.0, -0.3)  # viewing direction: from the front, a little from the side and above
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(prog="gaussvdb render", description=__doc__.split("\n\n")[1])
+    from kernels.lod import PRESETS, WEIGHTS
+    from kernels.render import MODES, colormap_names
+
+    p = cli_errors.ArgumentParser(prog="gaussvdb render", description=__doc__.split("\n\n")[1])
     p.add_argument("file")
-    p.add_argument("--grid", default=None, help="grid name (default: the first with active voxels)")
-    p.add_argument("--lod", default="medium", help="LOD preset (low, medium, high, variance, merged)")
+    p.add_argument("--grid", default=None, help="grid name (default: the first scalar grid with "
+                   "active voxels)")
+    p.add_argument("--vector-magnitude", action="store_true",
+                   help="vec3 grids (velocity) count as their magnitude, as in the importer")
+    p.add_argument("--lod", default="medium", choices=PRESETS, help="LOD preset")
     p.add_argument("--mode", default="particles", choices=MODES)
-    p.add_argument("--colormap", default="viridis")
-    p.add_argument("--size", default="640x480", help="WxH pixels")
+    p.add_argument("--colormap", default="viridis", type=str.lower, choices=colormap_names())
+    p.add_argument("--size", default=(640, 480), type=cli_errors.size, help="WxH pixels (640x480)")
     p.add_argument("--out", default="render.png", help=".png or .exr (.jpg, .tif also work)")
-    p.add_argument("--threads", type=int, default=0, help="CPU threads (0: all)")
-    p.add_argument("--density", type=float, default=None, help="extinction per world unit (default: "
-                   "10 per voxel-box diagonal, scaled to the grid)")
-    p.add_argument("--weights", default="field", choices=("field", "paper"))
+    p.add_argument("--threads", type=cli_errors.threads, default=0, help="CPU threads (0: all)")
+    p.add_argument("--density", type=cli_errors.nonnegative, default=None,
+                   help="extinction per world unit (default: 10 per voxel-box diagonal, scaled to the grid)")
+    p.add_argument("--weights", default="field", choices=WEIGHTS)
     p.add_argument("--transparent", action="store_true", help="transparent film (alpha kept)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
-    try:
-        w, h = (int(v) for v in a.size.lower().split("x"))
-        assert w > 0 and h > 0
-    except (ValueError, AssertionError):
-        p.error(f"--size must look like 640x480, not {a.size!r}")
-    a.width, a.height = w, h
+    a.width, a.height = a.size
     return a
-
-
-def pick_grid(path, grid):
-    if grid:
-        return grid
-    from kernels.vdb import read_topology
-
-    grids = read_topology(path).grids
-    live = [g for g in grids if g.active_voxels and g.value_type in ("float", "double", "half")]
-    chosen = (live or grids)
-    if not chosen:
-        raise SystemExit(f"gaussvdb render: no grid in {path}")
-    return chosen[0].name
 
 
 def world_box(obj):
@@ -110,42 +105,56 @@ def build_scene(bpy, objs, args):
     return scene
 
 
+def check_format(final_render, out):
+    """--out against the image types the engine writes (final_render.FORMATS: one list)."""
+    ext = os.path.splitext(out)[1].lower()
+    if ext not in final_render.FORMATS:
+        raise UsageError(f"--out {out}: cannot write {ext or 'a file without extension'} images; "
+                         f"use {', '.join(sorted(final_render.FORMATS))}", "gaussvdb render")
+
+
 def render(args) -> dict:
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import cli_grids
     from blender_session import addon_module, start
 
-    from kernels.render import colormap_names
-
-    if args.colormap.lower() not in colormap_names():
-        raise SystemExit(f"gaussvdb render: unknown colormap {args.colormap!r}; have {colormap_names()}")
-    if not os.path.isfile(args.file):
-        raise SystemExit(f"gaussvdb render: no such file {args.file}")
-    grid = pick_grid(args.file, args.grid)
+    grid = cli_grids.choose_grid(args.file, args.grid, args.vector_magnitude)
     bpy = start()
     importer = addon_module("gaussvdb_addon.importer")
     final_render = addon_module("gaussvdb_addon.final_render")
+    check_format(final_render, args.out)
     bpy.ops.wm.read_homefile(use_empty=True)
     t0 = time.perf_counter()
-    objs = importer.import_vdb(os.path.abspath(args.file), grids=[grid], lods=(args.lod,),
-                               weights=args.weights, collection=bpy.context.scene.collection,
-                               compute_error=False)
+    try:
+        objs = importer.import_vdb(os.path.abspath(args.file), grids=[grid], lods=(args.lod,),
+                                   weights=args.weights, vector_magnitude=args.vector_magnitude,
+                                   collection=bpy.context.scene.collection, compute_error=False)
+    except importer.ImportError_ as err:
+        raise InputError(f"{args.file}: {err}") from err
     seconds_import = time.perf_counter() - t0
-    if not objs:
-        raise SystemExit(f"gaussvdb render: nothing imported from {args.file} (grid {grid})")
     scene = build_scene(bpy, objs, args)
-    stats = final_render.render_scene_to_file(scene, os.path.abspath(args.out))
+    stats = quiet_render(final_render, scene, os.path.abspath(args.out))
     stats.update(seconds_import=seconds_import, lod=args.lod, grid=grid, colormap=args.colormap,
                  file=os.path.abspath(args.file), out=os.path.abspath(args.out))
     return stats
 
 
+def quiet_render(final_render, scene, out) -> dict:
+    """Render to ``out``. The engine prints the traceback of a failed render (for the Blender
+    console); here the failure is one line, so that print is kept back unless --debug."""
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(buf):
+            return final_render.render_scene_to_file(scene, out)
+    except RuntimeError as err:
+        raise RuntimeError(f"render of {out} failed: {cli_errors.one_line(err)}") from err
+    finally:
+        if cli_errors.debug_enabled() or "Traceback" not in buf.getvalue():
+            sys.stderr.write(buf.getvalue())  # warnings and notes pass through
+
+
 def main(argv) -> int:
     args = parse(argv)
-    try:
-        stats = render(args)
-    except RuntimeError as err:
-        print(f"gaussvdb render: {err}", file=sys.stderr)
-        return 1
+    stats = render(args)
     if args.json:
         print(json.dumps(stats, sort_keys=True))
     else:
@@ -156,4 +165,5 @@ def main(argv) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    sys.exit(cli_errors.run("gaussvdb render", main, sys.argv[1:]))

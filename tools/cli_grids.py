@@ -1,0 +1,37 @@
+"""Which grid of a .vdb file `render` and `convert` use, decided from the topology alone (cheap,
+before Blender starts or kernels load); when none can be used, the refusal says why per grid."""
+from __future__ import annotations
+
+from cli_errors import InputError
+
+
+def unusable(grid, vector_magnitude=False):
+    """Why ``grid`` (a GridData, topology is enough) gives no scalar field, or None."""
+    if grid.value_type.startswith("vec3") and not vector_magnitude:
+        return f"{grid.value_type} grid, use --vector-magnitude"
+    if not grid.active_voxels:
+        return "empty grid (no active voxels)"
+    return None
+
+
+def choose_grid(path, grid=None, vector_magnitude=False) -> str:
+    """The named grid, or the first usable one; InputError naming the file and each grid's reason.
+    A file the reader refuses raises its VDBFormatError (which names the file and byte offset)."""
+    from kernels.vdb import read_topology
+
+    topo = read_topology(path)
+    # the reader's own reasons for grids it skips (points, integers, ...), then ours
+    reasons = dict(topo.skipped)
+    reasons.update((g.name, why) for g in topo.grids if (why := unusable(g, vector_magnitude)))
+    listed = [g.name for g in topo.grids] + [n for n, _ in topo.skipped]
+    if grid is not None:
+        if grid not in listed:
+            raise InputError(f"no grid {grid!r} in {path} (grids: {', '.join(listed) or 'none'})")
+        if grid in reasons:
+            raise InputError(f"grid {grid!r} of {path} cannot be used: {reasons[grid]}")
+        return grid
+    usable = [name for name in listed if name not in reasons]
+    if not usable:
+        why = "; ".join(f"{n}: {r}" for n, r in reasons.items()) or "the file holds no grids"
+        raise InputError(f"no scalar grid in {path} ({why})")
+    return usable[0]
