@@ -40,6 +40,8 @@ def main(argv: list[str]) -> int:
               "./gaussvdb help)", file=sys.stderr)
         return 2
     rest = argv[argv.index(name) + 1:]  # --debug stays in: run() takes it out again
+    if name == "test":  # pytest's own arguments (its --debug included) pass through untouched
+        return int(importlib.import_module("cmd_test").main(rest) or 0)
     return cli_errors.run(f"gaussvdb {name}",
                           lambda a: importlib.import_module(f"cmd_{name}").main(a), rest)
 
