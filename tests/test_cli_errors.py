@@ -195,6 +195,6 @@ def test_render_vector_magnitude(files, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     stats = json.loads(proc.stdout.strip().splitlines()[-1])
     assert stats["grid"] == "vel" and stats["gaussians"] > 0
-    assert stats["value_range"][0] == pytest.approx(3.0, rel=1e-5)  # |(1, 2, 2)|; a constant
-    # range is widened upwards for the colormap, so only its low end is the data's
+    # |(1, 2, 2)| = 3 everywhere: a constant range is widened down to 0, so 3 is its top
+    assert stats["value_range"] == pytest.approx([0.0, 3.0], rel=1e-5)
     assert out.stat().st_size > 0
