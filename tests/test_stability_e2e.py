@@ -181,7 +181,9 @@ def test_nan_inf_voxels_sanitized_or_refused(bpy_module, scene, tmp_path):
         assert np.all(np.isfinite(gs.values)), lod
     for mode in ("PARTICLES", "FIELD", "PAPER"):
         rs, tf, _ = sync_scene(bpy, scene, mode)
-        check_sane(device().render(rs, frame(obj, 16), tf), tf)
+        # the paper's compositing adds colour c*A while alpha grows by 1 - exp(-A) < A, so its
+        # premultiplied colour may exceed cmax * alpha: only finiteness and range apply to it
+        check_sane(device().render(rs, frame(obj, 16), tf), None if mode == "PAPER" else tf)
 
 
 def test_values_spanning_1e_minus30_to_1e30(bpy_module, scene, tmp_path):
