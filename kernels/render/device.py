@@ -22,6 +22,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from .accel import build_gauss_accel, build_voxel_accel
+from .camera import Camera
 from .scene import RenderScene, same_geometry
 from .transfer import LUT_SIZE, TransferFunction
 
@@ -44,6 +45,11 @@ class Device(ABC):
 
     def end_frame(self) -> None:
         """Drop the frame's set-up (memory); the next render() redoes it."""
+
+    def load_kernels(self) -> float:
+        """Load (or compile) the kernels now, once per process, so that the first frame's
+        timings are its own. Returns the seconds it took."""
+        return 0.0
 
     @abstractmethod
     def render(self, scene: RenderScene, camera, tf: TransferFunction, *, rows=None, cols=None,
@@ -307,6 +313,17 @@ class CPUDevice(Device):
 
     def end_frame(self):
         self._frame = None
+
+    def load_kernels(self):
+        from .scene import RenderObject
+        from .synthetic import gaussian_set
+
+        t0 = time.perf_counter()
+        tiny = CPUDevice(threads=self.threads)  # a throwaway: this device's state stays as it is
+        sc = RenderScene([RenderObject(gaussian_set([[0.0, 0.0, 0.0]], 1.0, [1.0], [1.0]))])
+        cam = Camera.frame_box([-3.0] * 3, [3.0] * 3, 8, 8)
+        tiny.render(sc, cam, TransferFunction.from_colormap("grayscale", 0.0, 1.0))
+        return time.perf_counter() - t0
 
     def _build_frame(self, mode, scene, camera, prep):
         tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step = prep
