@@ -42,10 +42,13 @@ def parse(argv):
     return a
 
 
+ENV = dict(os.environ)  # for the CLI: as before this process's Blender session set its own paths
+
+
 def cli_seconds(path, mode, lod, size, out):
     cmd = [os.path.join(ROOT, "gaussvdb"), "render", path, "--mode", mode, "--lod", lod,
            "--size", f"{size[0]}x{size[1]}", "--out", out, "--json"]
-    res = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    res = subprocess.run(cmd, capture_output=True, text=True, check=True, env=ENV)
     return json.loads(res.stdout.strip().splitlines()[-1])["seconds_render"]
 
 
@@ -83,6 +86,7 @@ def main(argv=None):
                 tf = sync.transfer_function(scene.gaussvdb)
                 cam = final_render.scene_camera(scene, dg, w, h)
                 dev = final_render.get_device()
+                dev.sync(rscene)  # this sync's objects are new: not part of the frame's time
                 one = []
                 for _ in range(a.repeat):
                     dev.end_frame()

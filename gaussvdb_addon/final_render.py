@@ -2,7 +2,7 @@
 
 The frame's set-up is done once (``device.begin_frame``), then the image (or the render border's
 region, as Cycles does: Blender pads it to the full size unless the result is cropped) is drawn in
-bands of whole screen-tile rows, sized from the drawing time so one band takes about 0.15 s, with
+bands of whole screen-tile rows (``device.band_rows``), sized from the drawing time so one band takes about 0.15 s, with
 ``update_progress`` / ``update_result`` after each band and ``test_break`` before each (and polled
 by the device inside a band), so Esc stops a render within half a second. Combined is linear and
 premultiplied, written straight into the pass buffer (row 0 is the bottom row in both). Any error
@@ -19,7 +19,6 @@ import numpy as np
 from ..kernels.render import Camera
 
 TARGET_BAND_SECONDS = 0.15
-TILE_ROWS = 8  # the kernels' screen-tile height: bands start on its multiples
 LAST_STATS = {}  # figures of the last final render in this process (the CLI prints them)
 _DEVICE = {}  # one CPU device per process: numba kernels compile once, acceleration is reused
 LOAD_SECONDS = [0.0]  # loading the kernels when the device was made (once per process)
@@ -203,8 +202,9 @@ def _render(engine, depsgraph):
     engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")
     device.begin_frame(rscene, camera, tf)  # once per frame; the bands only draw rows
     t_setup = time.perf_counter() - t1
+    least, align = device.band_rows(rscene)  # e.g. whole screen-tile rows, two per thread
     row = y0
-    band = TILE_ROWS
+    band = least
     cancelled = False
     last_flush = time.perf_counter()
     try:
@@ -212,7 +212,7 @@ def _render(engine, depsgraph):
             if engine.test_break():
                 cancelled = True
                 break
-            r1 = _band_end(row, band, y1)
+            r1 = _band_end(row, band, y1, align)
             tb = time.perf_counter()
             out = device.render(rscene, camera, tf, rows=(row, r1), cols=(x0, x1),
                                 cancel=engine.test_break)
@@ -224,8 +224,6 @@ def _render(engine, depsgraph):
             if device.stats.get("cancelled"):
                 cancelled = True
                 break
-            # whole screen-tile rows, at least two per thread: the device draws them in parallel
-            least = 2 * TILE_ROWS * max(1, int(device.stats.get("threads") or 1))
             per_row = dt / max(1, r1 - row)
             band = int(max(least, min(y1 - y0, TARGET_BAND_SECONDS / max(per_row, 1e-9))))
             row = r1
@@ -250,9 +248,9 @@ def _render(engine, depsgraph):
                             f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
 
 
-def _band_end(row, band, end):
-    """The end of the band from row: on a screen-tile row boundary (TILE_ROWS) unless at end."""
-    r1 = (row + band) // TILE_ROWS * TILE_ROWS
+def _band_end(row, band, end, align):
+    """The end of the band from row: on a multiple of align unless at the end."""
+    r1 = (row + band) // align * align
     return min(end, r1 if r1 > row else row + band)
 
 

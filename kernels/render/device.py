@@ -51,6 +51,11 @@ class Device(ABC):
         timings are its own. Returns the seconds it took."""
         return 0.0
 
+    def band_rows(self, scene: RenderScene) -> tuple:
+        """(fewest, multiple): the rows a render() call should cover to keep the device busy,
+        and the row multiple bands should start on."""
+        return 1, 1
+
     @abstractmethod
     def render(self, scene: RenderScene, camera, tf: TransferFunction, *, rows=None, cols=None,
                progress=None, cancel=None) -> dict:
@@ -379,14 +384,25 @@ class CPUDevice(Device):
                 t_start, t_items, t_mask)
         return _Frame(mode, camera.packed(), camera.width, camera.height, args)
 
+    def band_rows(self, scene):
+        # the kernels run screen-tile rows in parallel: two per thread
+        return 2 * self._kt.TILE * self.thread_count(scene), self._kt.TILE
+
+    def thread_count(self, scene):
+        """The numba threads a frame of this scene runs on."""
+        import numba
+
+        threads = scene.threads if scene.threads else self.threads
+        if not threads:
+            return numba.get_num_threads()
+        return max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
+
     @contextmanager
     def _thread_count(self, scene):
         import numba
 
-        threads = scene.threads if scene.threads else self.threads
         old = numba.get_num_threads()
-        if threads:
-            numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+        numba.set_num_threads(self.thread_count(scene))
         try:
             yield numba.get_num_threads()
         finally:
