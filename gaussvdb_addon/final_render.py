@@ -168,7 +168,7 @@ def _render(engine, depsgraph):
     scene = depsgraph.scene
     width, height = render_size(scene)
     camera = scene_camera(scene, depsgraph, width, height)
-    x0, y0, x1, y1 = render_region(scene, width, height)
+    region = render_region(scene, width, height)
     sync = scene_sync.SceneSync(viewport=False)
     rscene = sync.sync(depsgraph)
     tf = sync.transfer_function(scene.gaussvdb)
@@ -176,7 +176,31 @@ def _render(engine, depsgraph):
     device.sync(rscene)
     t_sync = time.perf_counter() - t0
 
-    # the result is the region's size (with a border, Blender places it in the image)
+    t1 = time.perf_counter()
+    engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")
+    device.begin_frame(rscene, camera, tf)  # once per frame; the bands only draw pixels
+    t_setup = time.perf_counter() - t1
+    try:
+        cancelled = _draw(engine, depsgraph, device, rscene, camera, tf, region)
+    finally:
+        device.end_frame()  # the frame's tile lists can be large
+    t_render = time.perf_counter() - t1
+    stats = dict(seconds_load=t_load, seconds_sync=t_sync, seconds_setup=t_setup,
+                 seconds_render=t_render, width=width, height=height, region=list(region),
+                 mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
+                 threads=device.stats.get("threads"), cancelled=cancelled,
+                 value_range=[tf.vmin, tf.vmax])
+    LAST_STATS.clear()
+    LAST_STATS.update(stats)
+    engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
+                            f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
+
+
+def _draw(engine, depsgraph, device, rscene, camera, tf, region):
+    """The region's pixels, band by band, into a result of its size (with a border, Blender
+    places it in the image); returns whether the render was cancelled."""
+    x0, y0, x1, y1 = region
+    scene = depsgraph.scene
     w, h = x1 - x0, y1 - y0
     layer_name = depsgraph.view_layer.name
     combined = np.zeros((h, w, 4), np.float32)
@@ -198,54 +222,38 @@ def _render(engine, depsgraph):
             if p is not None:
                 p.rect.foreach_set(buf.reshape(-1))
 
-    t1 = time.perf_counter()
-    engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")
-    device.begin_frame(rscene, camera, tf)  # once per frame; the bands only draw rows
-    t_setup = time.perf_counter() - t1
     least, align = device.band_rows(rscene)  # e.g. whole screen-tile rows, two per thread
     row = y0
     band = least
     cancelled = False
     last_flush = time.perf_counter()
-    try:
-        while row < y1:
-            if engine.test_break():
-                cancelled = True
-                break
-            r1 = _band_end(row, band, y1, align)
-            tb = time.perf_counter()
-            out = device.render(rscene, camera, tf, rows=(row, r1), cols=(x0, x1),
-                                cancel=engine.test_break)
-            dt = time.perf_counter() - tb
-            combined[row - y0:r1 - y0] = out["Combined"]
-            for name in extra:
-                if name in out:
-                    extra[name][row - y0:r1 - y0] = out[name]
-            if device.stats.get("cancelled"):
-                cancelled = True
-                break
-            per_row = dt / max(1, r1 - row)
-            band = int(max(least, min(y1 - y0, TARGET_BAND_SECONDS / max(per_row, 1e-9))))
-            row = r1
-            engine.update_progress((row - y0) / (y1 - y0))
-            now = time.perf_counter()
-            if row < y1 and now - last_flush > 0.5:
-                flush()
-                engine.update_result(result)
-                last_flush = now
-    finally:
-        device.end_frame()  # the frame's tile lists can be large
+    while row < y1:
+        if engine.test_break():
+            cancelled = True
+            break
+        r1 = _band_end(row, band, y1, align)
+        tb = time.perf_counter()
+        out = device.render(rscene, camera, tf, rows=(row, r1), cols=(x0, x1), cancel=engine.test_break)
+        dt = time.perf_counter() - tb
+        combined[row - y0:r1 - y0] = out["Combined"]
+        for name in extra:
+            if name in out:
+                extra[name][row - y0:r1 - y0] = out[name]
+        if device.stats.get("cancelled"):
+            cancelled = True
+            break
+        per_row = dt / max(1, r1 - row)
+        band = int(max(least, min(h, TARGET_BAND_SECONDS / max(per_row, 1e-9))))
+        row = r1
+        engine.update_progress((row - y0) / h)
+        now = time.perf_counter()
+        if row < y1 and now - last_flush > 0.5:
+            flush()
+            engine.update_result(result)
+            last_flush = now
     flush()
     engine.end_result(result)
-    t_render = time.perf_counter() - t1
-    stats = dict(seconds_load=t_load, seconds_sync=t_sync, seconds_setup=t_setup, seconds_render=t_render, width=width,
-                 height=height, region=[x0, y0, x1, y1], mode=rscene.mode, gaussians=sync.gaussians,
-                 objects=len(rscene.objects), threads=device.stats.get("threads"),
-                 cancelled=cancelled, value_range=[tf.vmin, tf.vmax])
-    LAST_STATS.clear()
-    LAST_STATS.update(stats)
-    engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
-                            f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
+    return cancelled
 
 
 def _band_end(row, band, end, align):

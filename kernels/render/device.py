@@ -386,9 +386,9 @@ class CPUDevice(Device):
 
     def band_rows(self, scene):
         # the kernels run screen-tile rows in parallel: two per thread
-        return 2 * self._kt.TILE * self.thread_count(scene), self._kt.TILE
+        return 2 * self._kt.TILE * self._num_threads(scene), self._kt.TILE
 
-    def thread_count(self, scene):
+    def _num_threads(self, scene):
         """The numba threads a frame of this scene runs on."""
         import numba
 
@@ -402,7 +402,7 @@ class CPUDevice(Device):
         import numba
 
         old = numba.get_num_threads()
-        numba.set_num_threads(self.thread_count(scene))
+        numba.set_num_threads(self._num_threads(scene))
         try:
             yield numba.get_num_threads()
         finally:
