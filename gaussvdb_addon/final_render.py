@@ -1,6 +1,8 @@
 """F12 / animation renders of the GAUSSVDB engine, and ``render_scene_to_file`` for the CLI and demo.
 
-The image is drawn in bands of rows (sized so one band takes about 0.15 s), with
+The frame's set-up is done once (``device.begin_frame``), then the image (or the render border's
+region, as Cycles does: Blender pads it to the full size unless the result is cropped) is drawn in
+bands of whole screen-tile rows (``device.band_rows``), sized from the drawing time so one band takes about 0.15 s, with
 ``update_progress`` / ``update_result`` after each band and ``test_break`` before each (and polled
 by the device inside a band), so Esc stops a render within half a second. Combined is linear and
 premultiplied, written straight into the pass buffer (row 0 is the bottom row in both). Any error
@@ -19,6 +21,7 @@ from ..kernels.render import Camera
 TARGET_BAND_SECONDS = 0.15
 LAST_STATS = {}  # figures of the last final render in this process (the CLI prints them)
 _DEVICE = {}  # one CPU device per process: numba kernels compile once, acceleration is reused
+LOAD_SECONDS = [0.0]  # loading the kernels when the device was made (once per process)
 
 
 class RenderCancelled(Exception):
@@ -32,30 +35,32 @@ def render_size(scene):
     return max(1, int(r.resolution_x * f)), max(1, int(r.resolution_y * f))
 
 
-def camera_from_object(cam_obj, width, height, matrix_world=None):
+def camera_from_object(cam_obj, width, height, matrix_world=None, pixel_aspect=1.0):
     """Kernel Camera for a Blender camera object at an image size (Blender's view-plane rules:
-    sensor fit AUTO spans the larger image side, HORIZONTAL the width, VERTICAL the height;
-    shifts are in units of the fitted side)."""
+    sensor fit AUTO spans the larger image side, HORIZONTAL the width, VERTICAL the height, sides
+    measured with the pixel aspect (a pixel's height over its width); shifts are in units of the
+    fitted side; clip start/end along the view axis)."""
     cam = cam_obj.data
     if cam.type not in ("PERSP", "ORTHO"):
         raise ValueError(f"camera type {cam.type} is not supported (perspective and orthographic are)")
     mw = np.array(matrix_world if matrix_world is not None else cam_obj.matrix_world, np.float64)
-    big = max(width, height)
+    tall = height * pixel_aspect
+    big = max(width, tall)
     fit = cam.sensor_fit
     if fit == "AUTO":
         fitted = big
     elif fit == "HORIZONTAL":
         fitted = width
     else:
-        fitted = height
+        fitted = tall
     scale = big / fitted  # fitted-side units -> larger-side units
-    sx, sy = cam.shift_x / scale, cam.shift_y / scale
+    kw = dict(shift_x=cam.shift_x / scale, shift_y=cam.shift_y / scale, pixel_aspect=pixel_aspect,
+              clip_start=max(0.0, cam.clip_start), clip_end=max(cam.clip_start, cam.clip_end, 0.0))
     if cam.type == "ORTHO":
-        return Camera(mw, width, height, "ortho", ortho_scale=cam.ortho_scale * scale,
-                      shift_x=sx, shift_y=sy)
+        return Camera(mw, width, height, "ortho", ortho_scale=cam.ortho_scale * scale, **kw)
     sensor = cam.sensor_height if fit == "VERTICAL" else cam.sensor_width
     half = 0.5 * sensor / cam.lens * scale
-    return Camera(mw, width, height, "persp", fov_x=2.0 * math.atan(half), shift_x=sx, shift_y=sy)
+    return Camera(mw, width, height, "persp", fov_x=2.0 * math.atan(half), **kw)
 
 
 def scene_camera(scene, depsgraph, width, height):
@@ -63,7 +68,26 @@ def scene_camera(scene, depsgraph, width, height):
     if cam is None:
         raise ValueError("the scene has no camera")
     ev = cam.evaluated_get(depsgraph) if depsgraph is not None else cam
-    return camera_from_object(ev, width, height)
+    r = scene.render
+    return camera_from_object(ev, width, height, pixel_aspect=r.pixel_aspect_y / r.pixel_aspect_x)
+
+
+def render_region(scene, width, height):
+    """The pixels drawn, (x0, y0, x1, y1) from the bottom left: the render border when it is on
+    (Blender's rounding: border fraction x size in float32, truncated), else the whole image."""
+    r = scene.render
+    if not r.use_border:
+        return 0, 0, width, height
+
+    def px(frac, size):
+        return int(np.float32(frac) * np.float32(size))
+
+    x0, x1 = px(r.border_min_x, width), px(r.border_max_x, width)
+    y0, y1 = px(r.border_min_y, height), px(r.border_max_y, height)
+    if x1 <= x0 or y1 <= y0:
+        raise ValueError(f"the render border ({r.border_min_x:.3f}..{r.border_max_x:.3f} x "
+                         f"{r.border_min_y:.3f}..{r.border_max_y:.3f}) covers no pixel")
+    return x0, y0, x1, y1
 
 
 # -- passes ---------------------------------------------------------------------------------------
@@ -93,10 +117,13 @@ def new_device():
 
 
 def get_device():
-    """The process-wide device of final renders (acceleration reused across frames)."""
+    """The process-wide device of final renders (acceleration reused across frames); its kernels
+    are loaded when it is made (LOAD_SECONDS), apart from any frame's timings."""
     dev = _DEVICE.get("CPU")
     if dev is None:
-        dev = _DEVICE["CPU"] = new_device()
+        dev = new_device()
+        LOAD_SECONDS[0] = dev.load_kernels()
+        _DEVICE["CPU"] = dev
     return dev
 
 
@@ -119,29 +146,60 @@ def render(engine, depsgraph):
 def _render(engine, depsgraph):
     from . import scene_sync
 
+    fresh = "CPU" not in _DEVICE
+    if fresh:
+        engine.update_stats("", "GaussVDB | loading the kernels")
+    device = get_device()
+    t_load = LOAD_SECONDS[0] if fresh else 0.0
     t0 = time.perf_counter()
     scene = depsgraph.scene
     width, height = render_size(scene)
     camera = scene_camera(scene, depsgraph, width, height)
+    region = render_region(scene, width, height)
     sync = scene_sync.SceneSync(viewport=False)
     rscene = sync.sync(depsgraph)
     tf = sync.transfer_function(scene.gaussvdb)
-    device = get_device()
     engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
     device.sync(rscene)
     t_sync = time.perf_counter() - t0
 
+    t1 = time.perf_counter()
+    engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")
+    device.begin_frame(rscene, camera, tf)  # once per frame; the bands only draw pixels
+    t_setup = time.perf_counter() - t1
+    try:
+        cancelled = _draw(engine, depsgraph, device, rscene, camera, tf, region)
+    finally:
+        device.end_frame()  # the frame's tile lists can be large
+    t_render = time.perf_counter() - t1
+    stats = dict(seconds_load=t_load, seconds_sync=t_sync, seconds_setup=t_setup,
+                 seconds_render=t_render, width=width, height=height, region=list(region),
+                 mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
+                 threads=device.stats.get("threads"), cancelled=cancelled,
+                 value_range=[tf.vmin, tf.vmax])
+    LAST_STATS.clear()
+    LAST_STATS.update(stats)
+    engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
+                            f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
+
+
+def _draw(engine, depsgraph, device, rscene, camera, tf, region):
+    """The region's pixels, band by band, into a result of its size (with a border, Blender
+    places it in the image); returns whether the render was cancelled."""
+    x0, y0, x1, y1 = region
+    scene = depsgraph.scene
+    w, h = x1 - x0, y1 - y0
     layer_name = depsgraph.view_layer.name
-    combined = np.zeros((height, width, 4), np.float32)
-    extra = {name: np.full((height, width), 1e10 if name == "Depth" else 0.0, np.float32)
+    combined = np.zeros((h, w, 4), np.float32)
+    extra = {name: np.full((h, w), 1e10 if name == "Depth" else 0.0, np.float32)
              for name, *_ in wanted_passes(scene)}
-    result = engine.begin_result(0, 0, width, height, layer=layer_name)
+    result = engine.begin_result(0, 0, w, h, layer=layer_name)
     layer = result.layers[0]
     for name, ch, chid, _kind in wanted_passes(scene):
         if layer.passes.find(name) < 0:
             engine.end_result(result, cancel=True)
             engine.add_pass(name, ch, chid, layer=layer_name)
-            result = engine.begin_result(0, 0, width, height, layer=layer_name)
+            result = engine.begin_result(0, 0, w, h, layer=layer_name)
             layer = result.layers[0]
 
     def flush():
@@ -151,46 +209,44 @@ def _render(engine, depsgraph):
             if p is not None:
                 p.rect.foreach_set(buf.reshape(-1))
 
-    t1 = time.perf_counter()
-    band = min(height, 8)
-    row = 0
+    least, align = device.band_rows(rscene)  # e.g. whole screen-tile rows, two per thread
+    row = y0
+    band = least
     cancelled = False
-    last_flush = t1
-    while row < height:
+    last_flush = time.perf_counter()
+    while row < y1:
         if engine.test_break():
             cancelled = True
             break
-        r1 = min(height, row + band)
+        r1 = _band_end(row, band, y1, align)
         tb = time.perf_counter()
-        out = device.render(rscene, camera, tf, rows=(row, r1), cancel=engine.test_break)
+        out = device.render(rscene, camera, tf, rows=(row, r1), cols=(x0, x1), cancel=engine.test_break)
         dt = time.perf_counter() - tb
-        combined[row:r1] = out["Combined"]
+        combined[row - y0:r1 - y0] = out["Combined"]
         for name in extra:
             if name in out:
-                extra[name][row:r1] = out[name]
+                extra[name][row - y0:r1 - y0] = out[name]
         if device.stats.get("cancelled"):
             cancelled = True
             break
         per_row = dt / max(1, r1 - row)
-        band = int(max(1, min(height, TARGET_BAND_SECONDS / max(per_row, 1e-6))))
+        band = int(max(least, min(h, TARGET_BAND_SECONDS / max(per_row, 1e-9))))
         row = r1
-        engine.update_progress(row / height)
+        engine.update_progress((row - y0) / h)
         now = time.perf_counter()
-        if row < height and now - last_flush > 0.5:
+        if row < y1 and now - last_flush > 0.5:
             flush()
             engine.update_result(result)
             last_flush = now
     flush()
     engine.end_result(result)
-    t_render = time.perf_counter() - t1
-    stats = dict(seconds_sync=t_sync, seconds_render=t_render, width=width, height=height,
-                 mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
-                 threads=device.stats.get("threads"), cancelled=cancelled,
-                 value_range=[tf.vmin, tf.vmax])
-    LAST_STATS.clear()
-    LAST_STATS.update(stats)
-    engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
-                            f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
+    return cancelled
+
+
+def _band_end(row, band, end, align):
+    """The end of the band from row: on a multiple of align unless at the end."""
+    r1 = (row + band) // align * align
+    return min(end, r1 if r1 > row else row + band)
 
 
 # -- plain entry points (CLI, demo) ----------------------------------------------------------------

@@ -9,6 +9,7 @@ Everything except drawing is plain Python, tested headless (``camera_from_matric
 ``ProgressiveSchedule``).
 """
 
+import dataclasses
 import math
 import threading
 import time
@@ -64,8 +65,7 @@ def scaled_camera(cam, factor):
     stretched over the region; rounding moves its edges by less than one coarse pixel."""
     w = max(1, int(math.ceil(cam.width / factor)))
     h = max(1, int(math.ceil(cam.height / factor)))
-    return Camera(cam.cam_to_world, w, h, cam.kind, fov_x=cam.fov_x, ortho_scale=cam.ortho_scale,
-                  shift_x=cam.shift_x, shift_y=cam.shift_y)
+    return dataclasses.replace(cam, width=w, height=h)  # clip range and pixel aspect kept
 
 
 # -- scheduling -----------------------------------------------------------------------------------

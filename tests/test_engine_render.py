@@ -109,3 +109,42 @@ def test_test_break_stops_quickly_and_stats(bpy_module, scene):
     assert t1 - eng.t_break < 0.5, f"stopped {t1 - eng.t_break:.2f} s after Esc"
     assert final_render.LAST_STATS["cancelled"]
     assert t1 - t0 < 5.0
+
+
+def test_bands_whole_tile_rows_after_one_setup(bpy_module, scene):
+    """The frame is prepared once; the bands are whole screen-tile rows (several per thread), so
+    the band size never collapses to a row however long the set-up took."""
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+
+    bpy = bpy_module
+    make_object(bpy, "Cloud", lattice(16, 16, 16), values=np.linspace(0, 1, 16 ** 3))
+    add_camera(bpy, scene, (7.5, -40.0, 7.5), (math.pi / 2, 0.0, 0.0))
+    setup_render(scene, 120, 203)
+    scene.gaussvdb.threads = 2
+    dg = bpy.context.evaluated_depsgraph_get()
+    dev = final_render.get_device()
+    calls = []
+    render = dev.render
+
+    def counting(*a, **k):
+        out = render(*a, **k)
+        calls.append((k["rows"], dev.stats["seconds_setup"]))
+        return out
+
+    dev.render = counting  # the real device, its calls recorded
+    try:
+        eng = FakeEngine()
+        final_render.render(eng, dg)
+    finally:
+        del dev.render
+    assert not eng.errors and eng.image()[100, 60, 3] > 0.05
+    rows = [r for r, _ in calls]
+    assert rows[0][0] == 0 and rows[-1][1] == 203
+    assert all(a[1] == b[0] for a, b in zip(rows, rows[1:]))
+    assert all(r1 % 8 == 0 and r1 - r0 >= 32 for r0, r1 in rows[:-1])
+    assert all(s == 0.0 for _, s in calls)  # set up once, before the bands
+    stats = final_render.LAST_STATS
+    for k in ("seconds_load", "seconds_sync", "seconds_setup", "seconds_render"):
+        assert type(stats[k]) is float, k
+    assert 0.0 < stats["seconds_setup"] < stats["seconds_render"]
+    assert stats["region"] == [0, 0, 120, 203] and stats["threads"] == 2

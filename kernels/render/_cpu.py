@@ -251,13 +251,13 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
 @njit(**_hot)
 def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
-               g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs,
-               hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
+               g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc,
+               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
     return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                        cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
-                       g_obj, g_clo, g_chi, k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
+                       g_obj, g_clo, g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
                        tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, svals,
                        sact, samp, acc, cb, qs, fs)
 
@@ -272,19 +272,21 @@ def ray_scratch(cap):
 
 
 @njit(**_hot)
-def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
+def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                   cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w,
                   g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks,
                   cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk,
                   t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb,
                   iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact,
                   samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk):
-    """Pixels p0.. of the band of nr output rows from jr0 (image row j0), tile by tile (see
-    render_band); no allocation, no reference counting (see _cpu_math._hot). Returns -1, or the
-    pixel whose ray needs more hit rows than Hs has."""
+    """Pixels p0.. of the band of nr output rows from jr0 (image row j0) and image columns
+    [c0, c1) (output column i - c0), tile by tile (see render_band); no allocation, no reference
+    counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than Hs
+    has. Rays run over [clip start, clip end] along the view axis (cam[19:21])."""
     W = int(cam[1])
     Hh = int(cam[2])
     ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
+    clip0, clip1 = cam[19], cam[20]
     n_obj = w2i.shape[0]
     tmin_T = settings[0]
     tau_max = settings[1]
@@ -294,13 +296,18 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
     maxd = settings[8]
     tiled = mode <= 1 and t_start.shape[0] > 1
     ntx = (W + TILE - 1) // TILE
-    for p in range(p0, nr * W):
-        tx = p // (nr * TILE)
-        tw = min(TILE, W - tx * TILE)
-        q = p - tx * nr * TILE
+    w0 = min(c1, (c0 // TILE + 1) * TILE) - c0  # the first tile column's part of [c0, c1)
+    for p in range(p0, nr * (c1 - c0)):
+        if p < nr * w0:
+            x0, tw, q = c0, w0, p
+        else:
+            k = (p - nr * w0) // (nr * TILE)
+            x0 = (c0 // TILE + 1 + k) * TILE
+            tw = min(TILE, c1 - x0)
+            q = p - nr * w0 - k * nr * TILE
         jr = jr0 + q // tw
         j = j0 + q // tw
-        i = tx * TILE + q % tw
+        i = x0 + q % tw
         py = ((j + 0.5) / Hh - 0.5) * ey + offy
         px = ((i + 0.5) / W - 0.5) * ex + offx
         if cam[0] < 0.5:
@@ -310,11 +317,13 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
             nrm = math.sqrt(dcx * dcx + dcy * dcy + dcz * dcz)
             dwx, dwy, dwz = dcx / nrm, dcy / nrm, dcz / nrm
             owx, owy, owz = cam[16], cam[17], cam[18]
+            tn, tf = clip0 * nrm, clip1 * nrm  # the view-axis distances along this ray
         else:
             dwx, dwy, dwz = -cam[9], -cam[12], -cam[15]
             owx = cam[16] + px * cam[7] + py * cam[8]
             owy = cam[17] + px * cam[10] + py * cam[11]
             owz = cam[18] + px * cam[13] + py * cam[14]
+            tn, tf = clip0, clip1
         tl = (j // TILE) * ntx + i // TILE
         n = t_start[tl + 1] - t_start[tl] if tiled else 0
         for ob in range(n_obj):
@@ -328,8 +337,9 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
             ro[ob, 0], ro[ob, 1], ro[ob, 2] = ox, oy, oz
             rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
             if not tiled:
-                n = walk_object(ox, oy, oz, dx, dy, dz, nmin[ob], ndims[ob], noff[ob], node_table,
-                                node_cells, cell_skip, ob, iv_ta, iv_tb, iv_obj, iv_cell, n, max_walk)
+                n = walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin[ob], ndims[ob], noff[ob],
+                                node_table, node_cells, cell_skip, ob, iv_ta, iv_tb, iv_obj,
+                                iv_cell, n, max_walk)
         st[0] = 1.0
         st[1] = 0.0
         st[2] = 0.0
@@ -352,35 +362,37 @@ def render_pixels(p0, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table
         else:
             if tiled:
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
-                                 ro, rd, g_rec, g_col, g_val, g_obj, k2, tau_max, obj_step,
+                                 ro, rd, g_rec, g_col, g_val, g_obj, k2, tn, tf, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
                                  ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk)
             else:
                 rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
                                 cell_start, cell_items, face_start, face_items, g_rec, g_sph,
-                                obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tau_max, obj_step,
-                                obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
+                                obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tn, tf, tau_max,
+                                obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
                                 ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs)
             if rc == OVERFLOW:
                 return p
         T = st[0]
-        out_rgba[jr, i, 0] = st[1] + T * bgr * bga
-        out_rgba[jr, i, 1] = st[2] + T * bgg * bga
-        out_rgba[jr, i, 2] = st[3] + T * bgb * bga
-        out_rgba[jr, i, 3] = (1.0 - T) + T * bga
-        out_depth[jr, i] = st[4]
-        out_value[jr, i] = st[5] / st[6] if st[6] > 0.0 else 0.0
+        io = i - c0
+        out_rgba[jr, io, 0] = st[1] + T * bgr * bga
+        out_rgba[jr, io, 1] = st[2] + T * bgg * bga
+        out_rgba[jr, io, 2] = st[3] + T * bgb * bga
+        out_rgba[jr, io, 3] = (1.0 - T) + T * bga
+        out_depth[jr, io] = st[4]
+        out_value[jr, io] = st[5] / st[6] if st[6] > 0.0 else 0.0
         out_segs[jr] += st[7]
     return -1
 
 
 @njit(**_jit)
-def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
+def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
                 obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
                 t_mask, out_rgba, out_depth, out_value, out_segs):
-    """nr image rows from j0 (output rows from jr0) within one row of screen tiles, one tile after
+    """nr image rows from j0 (output rows from jr0), columns [c0, c1), within one row of screen
+    tiles, one tile after
     the other, so a tile's candidate list and the Gaussians it names stay in cache for its pixels
     (row by row, a 512-wide image cycles through 64 tiles' lists). The scratch arrays, then
     render_pixels (grown and resumed when a ray needs more hit rows). Kept out of render_rows'
@@ -415,7 +427,7 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
     out_segs[jr0:jr0 + nr] = 0.0
     p = 0
     while True:
-        p = render_pixels(p, jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
+        p = render_pixels(p, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
                           g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
                           bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par,
@@ -430,15 +442,15 @@ def render_band(jr0, j0, nr, mode, cam, w2i, nmin, ndims, noff, node_table, node
 
 
 @parallel_njit(**_jit)
-def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
-                cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
+def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_table, node_cells,
+                cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
                 obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
                 t_mask, out_rgba, out_depth, out_value, out_segs):
-    """Render rows [row0, row1) into out_* (indexed from 0 = row0) in bands of the screen tiles'
-    rows (render_band), spread over the image in the order 0, 16, 32, ..., 1, 17, ...: the
-    threads get contiguous blocks of it, so each samples the whole image (an object in the top
-    half would otherwise all go to one thread).
+    """Render rows [row0, row1) and columns [col0, col1) into out_* (indexed from 0 = row0,
+    col0) in bands of the screen tiles' rows (render_band), spread over the image in the order
+    0, 16, 32, ..., 1, 17, ...: the threads get contiguous blocks of it, so each samples the
+    whole image (an object in the top half would otherwise all go to one thread).
     settings: [T_min, tau_max, k, bg_r, bg_g, bg_b, bg_a, paper_steps, paper_max_depth]."""
     b0 = row0 // TILE
     nb = (row1 - 1) // TILE - b0 + 1 if row1 > row0 else 0
@@ -452,7 +464,7 @@ def render_rows(mode, cam, row0, row1, w2i, nmin, ndims, noff, node_table, node_
         band = b0 + order[q]
         j0 = max(row0, band * TILE)
         j1 = min(row1, (band + 1) * TILE)
-        render_band(j0 - row0, j0, j1 - j0, mode, cam, w2i, nmin, ndims, noff, node_table,
+        render_band(j0 - row0, j0, j1 - j0, col0, col1, mode, cam, w2i, nmin, ndims, noff, node_table,
                     node_cells, cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
                     g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
                     bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings,

@@ -252,10 +252,10 @@ def sweep_start(mode, qs, fs, cb, rd, obj_step):
 
 
 @njit(**_hot, inline="always")
-def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2):
+def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf):
     """The exact ray/support test of Gaussian g (object-index-space ray), without branches: s, e,
-    ts, aa, qq, ra, pk (chord, closest approach, |d'|^2, its squared distance, 1 / |d'|, peak
-    density); a miss has s >= e. One division and two roots."""
+    ts, aa, qq, ra, pk (chord clipped to the ray's [tn, tf], closest approach, |d'|^2, its squared
+    distance, 1 / |d'|, peak density); a miss has s >= e. One division and two roots."""
     ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
     wx, wy, wz = (ox - g_rec[g, 0]) * ix, (oy - g_rec[g, 1]) * iy, (oz - g_rec[g, 2]) * iz
     vx, vy, vz = dx * ix, dy * iy, dz * iz
@@ -267,9 +267,9 @@ def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2):
     qq = px * px + py * py + pz * pz
     ra = math.sqrt(ia)
     hw = math.sqrt(max(k2 - qq, 0.0)) * ra
-    s = max(ts - hw, 0.0) if qq < k2 else INF
+    s = max(ts - hw, tn) if qq < k2 else INF
     pk = g_rec[g, 6] * math.exp(-0.5 * min(qq, k2))
-    return s, ts + hw, ts, aa, qq, ra, pk
+    return s, min(ts + hw, tf), ts, aa, qq, ra, pk
 
 
 @njit(**_hot, inline="always")
@@ -288,10 +288,10 @@ def add_hit(H, hid, ev_t, ev_k, ev_h, q0, nq, nh, g, s, e, ts, aa, qq, ra, pk):
 
 
 @njit(**_hot, inline="always")
-def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs):
+def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf, H, hid, ev_t, ev_k, ev_h, qs):
     """Gaussian g's test (chord); a hit gets a record in H and an entry event. Returns OVERFLOW
     when H is full."""
-    s, e, ts, aa, qq, ra, pk = chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2)
+    s, e, ts, aa, qq, ra, pk = chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf)
     if not e > s:
         return 0
     nh = qs[NH]
@@ -473,9 +473,10 @@ def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_c
 @njit(**_hot)
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
-                k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H, hid,
-                ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
-    """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order.
+                k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H,
+                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
+    """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order
+    (the chords clipped to the ray's [tn, tf]).
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
     for ob in range(ro.shape[0]):
@@ -519,7 +520,8 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
                 czp = (g_sph[g, 0] - ox32) * dy32 - (g_sph[g, 1] - oy32) * dx32
                 if cxp * cxp + cyp * cyp + czp * czp > g_sph[g, 3] * dd32:
                     continue
-            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, H, hid, ev_t, ev_k, ev_h, qs) != 0:
+            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf, H, hid, ev_t, ev_k, ev_h,
+                        qs) != 0:
                 return OVERFLOW
         lastc[ob, 0] = cx
         lastc[ob, 1] = cy
@@ -537,7 +539,7 @@ NB = 32  # candidates tested per block (trace_tiles)
 
 
 @njit(**_hot, inline="always")
-def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, blk):
+def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk):
     """The tests (chord) of candidates cand[:nc] into blk[c] = s, e, ts, aa, qq, ra, pk, apart
     from the queue insertion: no branch then waits on a candidate's division and roots (together
     they cost ~18% more on dense volumes)."""
@@ -547,16 +549,17 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, blk):
         ob = 0 if one else g_obj[g]
         (blk[c, 0], blk[c, 1], blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5],
          blk[c, 6]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
-                            g_rec, k2)
+                            g_rec, k2, tn, tf)
 
 
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
-                k2, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
+                k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
                 ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
     by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles), in blocks of NB
-    candidates (the entries with the pixel's mask bit). Returns 0 or OVERFLOW."""
+    candidates (the entries with the pixel's mask bit), the chords clipped to the ray's [tn, tf].
+    Returns 0 or OVERFLOW."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
     swept = 0
     bit = (j % TILE) * TILE + i % TILE
@@ -578,7 +581,7 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                      tf_par, svals, sact, samp, acc):
                 return 0
-        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, blk)
+        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk)
         nh = qs[NH]
         nq = qs[NQ]
         q0 = qs[QH]

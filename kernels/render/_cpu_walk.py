@@ -48,16 +48,17 @@ def dda_axis(o, d, t, size, lo, hi):
 
 
 @njit(**_hot)
-def walk_object(ox, oy, oz, dx, dy, dz, nmin, ndims, noff, node_table, node_cells, cell_skip,
-                obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap):
+def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, node_cells,
+                cell_skip, obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap):
     """Hierarchical DDA (nodes of 128^3, then leaves of 8^3, integer cell indices) in q-space
-    (q = index + 0.5); appends the non-empty, non-transparent leaf intervals front to back."""
+    (q = index + 0.5) over the ray's [tn, tf]; appends the non-empty, non-transparent leaf
+    intervals front to back."""
     if ndims[0] == 0:
         return n
     qx, qy, qz = ox + 0.5, oy + 0.5, oz + 0.5
     t0, t1 = slab(qx, qy, qz, dx, dy, dz, nmin[0] * NODE, nmin[1] * NODE, nmin[2] * NODE,
                   (nmin[0] + ndims[0]) * NODE, (nmin[1] + ndims[1]) * NODE,
-                  (nmin[2] + ndims[2]) * NODE, 0.0, INF)
+                  (nmin[2] + ndims[2]) * NODE, tn, tf)
     if not t0 < t1:
         return n
     t = t0

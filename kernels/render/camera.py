@@ -4,11 +4,16 @@ Convention (Blender's): ``cam_to_world`` is the camera object's world matrix; th
 down its local -Z axis, +Y is up and +X is right in the image. Scale in the matrix is ignored
 (the rotation columns are normalised). ``sensor_fit`` is AUTO: ``fov_x`` (perspective) or
 ``ortho_scale`` (orthographic) spans the LARGER image dimension (the width when width >= height).
-``shift_x``/``shift_y`` are in units of that larger dimension, as in Blender.
+``shift_x``/``shift_y`` are in units of that larger dimension, as in Blender. ``pixel_aspect``
+is a pixel's height over its width (Blender's pixel_aspect_y / pixel_aspect_x): the image spans
+width x height * pixel_aspect in those units.
 
 Pixel (col i, row j) is sampled at its centre; row 0 is the BOTTOM row, matching Blender's
 render-pass buffers. Ray directions are unit WORLD vectors, so ray parameters t are world
 distances. Perspective rays start at the camera position, orthographic rays on the camera plane.
+Only the part of a ray between ``clip_start`` and ``clip_end`` is rendered; like Blender's, the
+clip distances are measured along the view axis (a perspective ray at angle a to it runs from
+clip_start / cos a).
 """
 from __future__ import annotations
 
@@ -30,6 +35,9 @@ class Camera:
     ortho_scale: float = 1.0
     shift_x: float = 0.0
     shift_y: float = 0.0
+    clip_start: float = 0.0
+    clip_end: float = math.inf
+    pixel_aspect: float = 1.0
 
     def __post_init__(self):
         self.cam_to_world = np.asarray(self.cam_to_world, dtype=np.float64).reshape(4, 4)
@@ -38,14 +46,21 @@ class Camera:
             raise ValueError(f"camera kind must be 'persp' or 'ortho', not {self.kind!r}")
         if self.width < 1 or self.height < 1:
             raise ValueError("image size must be positive")
+        self.clip_start, self.clip_end = float(self.clip_start), float(self.clip_end)
+        if not 0.0 <= self.clip_start <= self.clip_end:
+            raise ValueError(f"camera clip range must satisfy 0 <= start <= end, not "
+                             f"{self.clip_start}..{self.clip_end}")
+        if not self.pixel_aspect > 0.0:
+            raise ValueError(f"pixel aspect must be positive, not {self.pixel_aspect}")
 
     # -- packed form for the kernels ------------------------------------------------------
     def plane(self):
         """(extent_x, extent_y, offset_x, offset_y): the image rectangle on the plane z = -1
         (persp) or the camera plane (ortho), in camera units."""
         big = 2.0 * math.tan(0.5 * self.fov_x) if self.kind == "persp" else float(self.ortho_scale)
-        m = max(self.width, self.height)
-        return (big * self.width / m, big * self.height / m, self.shift_x * big, self.shift_y * big)
+        h = self.height * self.pixel_aspect
+        m = max(self.width, h)
+        return (big * self.width / m, big * h / m, self.shift_x * big, self.shift_y * big)
 
     def basis(self):
         """Orthonormalised rotation (3x3, columns = camera x, y, z in world) and position."""
@@ -58,11 +73,12 @@ class Camera:
         return r, m[:3, 3].copy()
 
     def packed(self) -> np.ndarray:
-        """float64 (20,): kind, W, H, ex, ey, ox, oy, R (9, row-major), pos (3)."""
+        """float64 (21,): kind, W, H, ex, ey, ox, oy, R (9, row-major), pos (3), clip start, end."""
         r, p = self.basis()
         ex, ey, ox, oy = self.plane()
         return np.concatenate([[1.0 if self.kind == "ortho" else 0.0, self.width, self.height,
-                                ex, ey, ox, oy], r.ravel(), p]).astype(np.float64)
+                                ex, ey, ox, oy], r.ravel(), p,
+                               [self.clip_start, self.clip_end]]).astype(np.float64)
 
     # -- framing ---------------------------------------------------------------------------
     @classmethod

@@ -1,7 +1,10 @@
 """Render devices, in the manner of Cycles: the engine talks to a ``Device``; ``sync(scene)``
-uploads/builds acceleration data once per scene change, ``render(...)`` draws a frame or a band
-of rows. ``CPUDevice`` (numba, parallel over rows, nogil, cached kernels) ships now; a GPU
-device implements the same two methods and registers itself in ``_REGISTRY``.
+uploads/builds acceleration data once per scene change; ``begin_frame(scene, camera, tf)`` does
+the per-frame set-up (weights, colours, empty-space skips, screen-tile lists) once per frame;
+``render(...)`` draws the whole frame or a region of it (a band of rows, a render border) and
+reuses the frame's set-up while camera, transfer function and settings are unchanged;
+``end_frame()`` frees it. ``CPUDevice`` (numba, parallel over rows, nogil, cached kernels) ships
+now; a GPU device implements the same methods and registers itself in ``_REGISTRY``.
 
 Passes: 'Combined' float32 (H, W, 4), linear, premultiplied alpha, row 0 = bottom;
 'Depth' float32 (H, W): world distance along the ray where the accumulated opacity reaches 0.5
@@ -12,11 +15,13 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
+from contextlib import contextmanager
 
 import numpy as np
 
 from ..cachedir import set_cache_root
 from .accel import build_gauss_accel, build_voxel_accel
+from .camera import Camera
 from .scene import RenderScene, same_geometry
 from .transfer import LUT_SIZE, TransferFunction
 
@@ -33,11 +38,33 @@ class Device(ABC):
         support radius). Cheap to skip when ``scene.geometry_key()`` is unchanged."""
 
     @abstractmethod
-    def render(self, scene: RenderScene, camera, tf: TransferFunction, *, rows=None,
+    def begin_frame(self, scene: RenderScene, camera, tf: TransferFunction):
+        """The per-frame set-up for this camera, TF and settings (syncs first if the geometry
+        changed); a no-op returning the kept state when they equal the last frame's."""
+
+    def end_frame(self) -> None:
+        """Drop the frame's set-up (memory); the next render() redoes it."""
+
+    def load_kernels(self) -> float:
+        """Load (or compile) the kernels now, once per process, so that the first frame's
+        timings are its own. Returns the seconds it took."""
+        return 0.0
+
+    def band_rows(self, scene: RenderScene) -> tuple:
+        """(fewest, multiple): the rows a render() call should cover to keep the device busy,
+        and the row multiple bands should start on."""
+        return 1, 1
+
+    @abstractmethod
+    def render(self, scene: RenderScene, camera, tf: TransferFunction, *, rows=None, cols=None,
                progress=None, cancel=None) -> dict:
-        """Render rows ``rows = (row0, row1)`` (default all) and return the passes for those
-        rows. ``progress(fraction)`` is called and ``cancel()`` polled between tiles; on cancel
-        the rows not yet drawn stay transparent and ``self.stats['cancelled']`` is True."""
+        """Render image rows ``rows = (row0, row1)`` and columns ``cols = (col0, col1)``
+        (default all; pixels are exactly those of the whole frame) and return the passes of that
+        region, (row1 - row0, col1 - col0). Calls begin_frame. ``progress(fraction)`` is called
+        and ``cancel()`` polled between steps of rows; on cancel the rows not yet drawn stay
+        transparent and ``self.stats['cancelled']`` is True. ``stats``: seconds_sync,
+        seconds_setup (this call's frame set-up, 0 when reused) and seconds_render (the whole
+        call, set-up included) as floats, segments (float), cancelled (bool), threads (int)."""
 
 
 def _alpha_max_table(lut):
@@ -67,7 +94,7 @@ class CPUDevice(Device):
     the kernels are first imported in this process."""
     name = "CPU"
 
-    def __init__(self, threads=None, cache_dir=None, tile_rows=32, screen_tiles=True):
+    def __init__(self, threads=None, cache_dir=None, tile_rows=None, screen_tiles=True):
         if cache_dir:
             set_cache_root(cache_dir)
         from . import _cpu, _cpu_tiles  # noqa: F401  (compiles or loads cached kernels lazily)
@@ -75,10 +102,12 @@ class CPUDevice(Device):
         self._kt = _cpu_tiles
         self.screen_tiles = bool(screen_tiles)  # particles/field: screen tiles, else the leaf walk
         self.threads = threads
-        self.tile_rows = int(tile_rows)
+        self.tile_rows = tile_rows  # rows per step with progress/cancel (None: see render)
         self._key = None
         self.gacc = None
         self._g_rec = None  # the per-ray test records (render)
+        self._sync_count = 0  # geometry version: part of the frame key
+        self._frame = None  # the current frame's state (begin_frame)
         self.vacc = None
         self.stats = {}
 
@@ -90,6 +119,8 @@ class CPUDevice(Device):
             self.stats["seconds_sync"] = 0.0
             return
         objs = scene.objects
+        self._frame = None
+        self._sync_count += 1
         self.gacc = build_gauss_accel(objs, scene.support_k)
         self._g_rec = None
         self.vacc = build_voxel_accel(objs) if any(o.grid is not None for o in objs) else None
@@ -250,14 +281,56 @@ class CPUDevice(Device):
         items, masks = kt.tile_fill(box, lb, cnt, start, ntx)
         return start, items, masks, lb
 
-    def render(self, scene, camera, tf, *, rows=None, progress=None, cancel=None):
-        import numba
+    @staticmethod
+    def _settings(scene):
+        """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth] for render_rows."""
+        bg = np.asarray(scene.background, np.float64).ravel()
+        bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
+        return np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
+                         float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
+                         float(scene.paper_steps), float(scene.paper_max_depth)])
 
+    def _frame_key(self, mode, scene, camera, prep):
+        """What a frame's state depends on besides the geometry (sync count): mode, tile switch,
+        camera, settings and the transfer-function tables."""
+        return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes(),
+                self._settings(scene).tobytes()) + tuple(
+                    np.ascontiguousarray(a).tobytes() for a in prep[1:])
+
+    def begin_frame(self, scene, camera, tf):
         if self.gacc is None or not same_geometry(scene.geometry_key(), self._key):
             self.sync(scene)
-        t_start = time.perf_counter()
         mode = MODE_IDS[scene.mode]
-        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step = self._prepare(scene, tf)
+        prep = self._prepare(scene, tf)
+        key = self._frame_key(mode, scene, camera, prep)
+        if self._frame is not None and self._frame.key == key:
+            self.stats["seconds_setup"] = 0.0
+            return self._frame
+        self._frame = None  # g_rec is rewritten below: the old frame's state is gone
+        t0 = time.perf_counter()
+        with self._thread_count(scene):
+            frame = self._build_frame(mode, scene, camera, prep)
+        frame.key = key
+        self._frame = frame
+        self.stats["seconds_setup"] = time.perf_counter() - t0
+        return frame
+
+    def end_frame(self):
+        self._frame = None
+
+    def load_kernels(self):
+        from .scene import RenderObject
+        from .synthetic import gaussian_set
+
+        t0 = time.perf_counter()
+        tiny = CPUDevice(threads=self.threads)  # a throwaway: this device's state stays as it is
+        sc = RenderScene([RenderObject(gaussian_set([[0.0, 0.0, 0.0]], 1.0, [1.0], [1.0]))])
+        cam = Camera.frame_box([-3.0] * 3, [3.0] * 3, 8, 8)
+        tiny.render(sc, cam, TransferFunction.from_colormap("grayscale", 0.0, 1.0))
+        return time.perf_counter() - t0
+
+    def _build_frame(self, mode, scene, camera, prep):
+        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step = prep
         if mode == 3:
             acc = self.vacc
             if acc is None:
@@ -301,56 +374,90 @@ class CPUDevice(Device):
         t_start, t_items, t_mask, t_lb = self._screen_tiles(mode, scene, camera, g_w)
         if t_lb is not None:
             g_rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
-        bg = np.asarray(scene.background, np.float64).ravel()
-        bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
-        settings = np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
-                             float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
-                             float(scene.paper_steps), float(scene.paper_max_depth)])
-        cam = camera.packed()
-        r0, r1 = (0, camera.height) if rows is None else (int(rows[0]), int(rows[1]))
-        nr, W = r1 - r0, camera.width
-        rgba = np.zeros((nr, W, 4), np.float32)
-        depth = np.full((nr, W), 1e10, np.float32)
-        value = np.zeros((nr, W), np.float32)
-        segs = np.zeros(nr)
+        settings = self._settings(scene)
+        # render_rows' arguments after (mode, cam, rows, columns) and before the outputs
+        args = (self.w2i, acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
+                cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col,
+                g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz,
+                obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
+                t_start, t_items, t_mask)
+        return _Frame(mode, camera.packed(), camera.width, camera.height, args)
+
+    def band_rows(self, scene):
+        # the kernels run screen-tile rows in parallel: two per thread
+        return 2 * self._kt.TILE * self._num_threads(scene), self._kt.TILE
+
+    def _num_threads(self, scene):
+        """The numba threads a frame of this scene runs on."""
+        import numba
+
         threads = scene.threads if scene.threads else self.threads
+        if not threads:
+            return numba.get_num_threads()
+        return max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
+
+    @contextmanager
+    def _thread_count(self, scene):
+        import numba
+
         old = numba.get_num_threads()
-        if threads:
-            numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-        cancelled = False
+        numba.set_num_threads(self._num_threads(scene))
         try:
-            step = max(1, self.tile_rows) if (progress or cancel) else nr
+            yield numba.get_num_threads()
+        finally:
+            numba.set_num_threads(old)
+
+    def render(self, scene, camera, tf, *, rows=None, cols=None, progress=None, cancel=None):
+        t0 = time.perf_counter()
+        frame = self.begin_frame(scene, camera, tf)
+        t_setup = self.stats["seconds_setup"]
+        r0, r1 = (0, frame.height) if rows is None else (int(rows[0]), int(rows[1]))
+        c0, c1 = (0, frame.width) if cols is None else (int(cols[0]), int(cols[1]))
+        if not (0 <= r0 <= r1 <= frame.height and 0 <= c0 <= c1 <= frame.width):
+            raise ValueError(f"rows {r0}..{r1} / columns {c0}..{c1} outside the "
+                             f"{frame.width}x{frame.height} image")
+        nr, nc = r1 - r0, c1 - c0
+        rgba = np.zeros((nr, nc, 4), np.float32)
+        depth = np.full((nr, nc), 1e10, np.float32)
+        value = np.zeros((nr, nc), np.float32)
+        segs = np.zeros(nr)
+        cancelled = False
+        with self._thread_count(scene) as threads:
+            # with progress/cancel: steps of tile_rows (default: 32, or two tile rows per thread)
+            step = self.tile_rows or max(32, 2 * self._kt.TILE * threads)
+            step = max(1, int(step)) if (progress or cancel) else nr
             a = 0
             while a < nr:
                 if cancel is not None and cancel():
                     cancelled = True
                     break
                 b = min(nr, a + step)
-                o_rgba = np.empty((b - a, W, 4))
-                o_depth = np.empty((b - a, W))
-                o_value = np.empty((b - a, W))
-                self._k.render_rows(mode, cam, r0 + a, r0 + b, self.w2i, acc.node_min,
-                                    acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
-                                    cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
-                                    g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph,
-                                    obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind, obj_tf,
-                                    obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
-                                    t_start, t_items, t_mask, o_rgba,
-                                    o_depth, o_value, segs[a:b])
+                o_rgba = np.empty((b - a, nc, 4))
+                o_depth = np.empty((b - a, nc))
+                o_value = np.empty((b - a, nc))
+                self._k.render_rows(frame.mode, frame.cam, r0 + a, r0 + b, c0, c1, *frame.args,
+                                    o_rgba, o_depth, o_value, segs[a:b])
                 rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
                 a = b
                 if progress is not None:
                     progress(a / nr)
-        finally:
-            numba.set_num_threads(old)
-        self.stats.update(seconds_render=time.perf_counter() - t_start, segments=float(segs.sum()),
-                          cancelled=cancelled, threads=numba.get_num_threads() if not threads else threads)
+        self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
+                          segments=float(segs.sum()), cancelled=bool(cancelled), threads=int(threads))
         out = {"Combined": rgba}
         if "Depth" in scene.passes:
             out["Depth"] = depth
         if "Value" in scene.passes:
             out["Value"] = value
         return out
+
+
+class _Frame:
+    """A frame's state from begin_frame: the kernels' per-frame arguments (weights, colours, cell
+    skips, screen-tile lists), the packed camera and its key."""
+
+    def __init__(self, mode, cam, width, height, args):
+        self.mode, self.cam, self.width, self.height, self.args = mode, cam, width, height, args
+        self.key = None
 
 
 def _resample(t: TransferFunction) -> TransferFunction:
