@@ -117,7 +117,7 @@ def render(engine, depsgraph):
 
 
 def _render(engine, depsgraph):
-    from . import scene_sync
+    from . import legend_overlay, scene_sync
 
     t0 = time.perf_counter()
     scene = depsgraph.scene
@@ -126,6 +126,8 @@ def _render(engine, depsgraph):
     sync = scene_sync.SceneSync(viewport=False)
     rscene = sync.sync(depsgraph)
     tf = sync.transfer_function(scene.gaussvdb)
+    for msg in sync.warnings:  # transfer-function warnings (log scale over values <= 0)
+        engine.report({"WARNING"}, f"GaussVDB: {msg}")
     device = get_device()
     engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
     device.sync(rscene)
@@ -180,13 +182,15 @@ def _render(engine, depsgraph):
             flush()
             engine.update_result(result)
             last_flush = now
+    # the colour legend (scene.gaussvdb.show_legend), over the finished image
+    legend_drawn = not cancelled and legend_overlay.composite(scene.gaussvdb, sync, tf, combined)
     flush()
     engine.end_result(result)
     t_render = time.perf_counter() - t1
     stats = dict(seconds_sync=t_sync, seconds_render=t_render, width=width, height=height,
                  mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
                  threads=device.stats.get("threads"), cancelled=cancelled,
-                 value_range=[tf.vmin, tf.vmax])
+                 value_range=[tf.vmin, tf.vmax], warnings=list(sync.warnings), legend=legend_drawn)
     LAST_STATS.clear()
     LAST_STATS.update(stats)
     engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "

@@ -1,11 +1,13 @@
 """`./gaussvdb render FILE.vdb [--grid G] [--lod PRESET] [--mode particles|field|paper|reference]
-[--colormap NAME] [--size WxH] [--out IMG.png|.exr] [--threads N] [--density D] [--json]`
+[--colormap NAME] [--size WxH] [--out IMG.png|.exr] [--threads N] [--density D] [--log-scale] [--legend]
+[--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
 (``bpy.ops.render.render(write_still=True)``) and writes the image. Prints a summary, or with
 --json one JSON line: seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
-threads, lod, grid, colormap, out. Exit status 1 with the engine's message when the render fails.
+threads, lod, grid, colormap, out, warnings. Warnings (a log scale over values <= 0) go to stderr.
+Exit status 1 with the engine's message when the render fails.
 """
 from __future__ import annotations
 
@@ -34,6 +36,8 @@ def parse(argv):
                    "10 per voxel-box diagonal, scaled to the grid)")
     p.add_argument("--weights", default="field", choices=("field", "paper"))
     p.add_argument("--transparent", action="store_true", help="transparent film (alpha kept)")
+    p.add_argument("--log-scale", action="store_true", help="log10 transfer function")
+    p.add_argument("--legend", action="store_true", help="draw the colour legend (scalar bar)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
     try:
@@ -99,6 +103,8 @@ def build_scene(bpy, objs, args):
     s.mode = args.mode.upper()
     s.colormap = args.colormap
     s.threads = args.threads
+    s.show_legend = bool(getattr(args, "legend", False))
+    s.log_scale = bool(getattr(args, "log_scale", False))
     if args.density is not None:
         s.density = args.density
     else:
@@ -146,6 +152,8 @@ def main(argv) -> int:
     except RuntimeError as err:
         print(f"gaussvdb render: {err}", file=sys.stderr)
         return 1
+    for msg in stats.get("warnings", ()):
+        print(f"gaussvdb render: warning: {msg}", file=sys.stderr)
     if args.json:
         print(json.dumps(stats, sort_keys=True))
     else:
