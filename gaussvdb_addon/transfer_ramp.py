@@ -166,7 +166,7 @@ def signature(ramp):
     import hashlib
 
     parts = [ramp.interpolation, ramp.color_mode]
-    parts += [f"{e.position:.6f}:" + ",".join(f"{c:.6f}" for c in e.color) for e in ramp.elements]
+    parts += sorted(f"{e.position:.6f}:" + ",".join(f"{c:.6f}" for c in e.color) for e in ramp.elements)
     return hashlib.sha1(";".join(parts).encode()).hexdigest()[:16]
 
 
@@ -217,13 +217,14 @@ def fill_from_colormap(settings, name, alpha="ramp"):
 
 
 def stops_of(settings):
-    """[(position, (r, g, b, a))] of the ramp (what a saved preset stores), or None."""
+    """[(position, (r, g, b, a))] of the ramp, by position (what a saved preset stores; Python
+    edits of a position leave the elements unsorted until the UI sorts them), or None."""
     tex = settings.ramp_texture
     ramp = getattr(tex, "color_ramp", None) if tex is not None else None
     if ramp is None:
         return None
-    return [(round(float(e.position), 6), tuple(round(float(c), 6) for c in e.color))
-            for e in ramp.elements]
+    return sorted(((round(float(e.position), 6), tuple(round(float(c), 6) for c in e.color))
+                   for e in ramp.elements), key=lambda s: s[0])
 
 
 def load_stops(settings, stops, interpolation="LINEAR"):
