@@ -27,9 +27,10 @@ def composite(settings, sync, tf, combined):
     return True
 
 
-def draw_viewport(settings, sync, tf, width, height, cache):
-    """Draw the legend over the viewport region (called from view_draw, after the image). The
-    texture is kept in ``cache`` (a dict) until the legend's inputs change."""
+def draw_viewport(settings, sync, tf, width, height, cache, engine=None, scene=None):
+    """Draw the legend over the viewport region (called from view_draw, after the image;
+    ``engine``'s display-space shader converts its linear colours like the image's). The texture
+    is kept in ``cache`` (a dict) until the legend's inputs change."""
     import gpu
     from gpu_extras.presets import draw_texture_2d
 
@@ -51,5 +52,9 @@ def draw_viewport(settings, sync, tf, width, height, cache):
     tex, w, h = cache["tex"]
     x0, y0 = legend.corner_origin(width, height, (h, w), settings.legend_corner.lower())
     gpu.state.blend_set("ALPHA_PREMULT")
+    if engine is not None:
+        engine.bind_display_space_shader(scene)
     draw_texture_2d(tex, (x0, y0), w, h)
+    if engine is not None:
+        engine.unbind_display_space_shader()
     gpu.state.blend_set("NONE")

@@ -185,7 +185,8 @@ class ViewportSession:
             from . import legend_overlay
 
             legend_overlay.draw_viewport(depsgraph.scene.gaussvdb, self.sync, self.tf,
-                                         region.width, region.height, self.legend_cache)
+                                         region.width, region.height, self.legend_cache,
+                                         self.engine, depsgraph.scene)
         if not self.schedule.converged:
             self.engine.tag_redraw()
 
