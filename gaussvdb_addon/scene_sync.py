@@ -186,8 +186,8 @@ def values_of(settings, gaussians=None):
     v = np.asarray(gaussians.values, np.float64)
     if v.size == 0:
         return None
-    w = np.asarray(getattr(gaussians, "voxels", None) if getattr(gaussians, "voxels", None)
-                   is not None else np.ones(v.size), np.float64)
+    vox = getattr(gaussians, "voxels", None)
+    w = np.ones(v.size) if vox is None else np.asarray(vox, np.float64)
     fin = np.isfinite(v)
     pos = v[v > 0]
     return (float(v[fin].min()) if fin.any() else 0.0, float(v[fin].max()) if fin.any() else 0.0,
@@ -227,7 +227,7 @@ def stored_range(settings, objects):
     items = [values_of(o.gaussvdb) for o in objects if o.gaussvdb.grid_class != "level_set"]
     if settings.auto_range and any(it is None for it in items):
         return None
-    return effective_range(settings, auto_range(items, settings.log_scale))
+    return effective_range(settings, auto_range(items, settings.log_scale) or (0.0, 1.0))
 
 
 def level_set_color(settings):
@@ -369,8 +369,8 @@ class SceneSync:
 
     def _object_tf(self, gs, e):
         """The object's own transfer function (its colormap/ramp, range, log scale, density)."""
-        auto = auto_range([e.values], gs.log_scale)
-        return transfer_function(gs, *(auto or (None, None)), create=not self.viewport)
+        lo, hi = auto_range([e.values], gs.log_scale) or (0.0, 1.0)  # as the scene's
+        return transfer_function(gs, lo, hi, create=not self.viewport)
 
     def transfer_function(self, settings, lut=None):
         lo, hi = self.value_range

@@ -1,9 +1,11 @@
 """The editable transfer function: a Blender ColorRamp (colour and alpha) filled by colormap presets.
 
-A ColorRamp can only live inside a texture or a node, so the scene's transfer function is the
-ramp of a Blend texture (``scene.gaussvdb.ramp_texture``), drawn in the render panel with
-``template_color_ramp``. The texture is created lazily (at render time, or when a colormap is
-picked): property update callbacks may run where datablocks cannot be created.
+A ColorRamp can only live inside a texture or a node, so a transfer function's ramp is that of a
+Blend texture (``ramp_texture`` of the scene's settings, or of an object's own), drawn with
+``template_color_ramp``. ``ramp_signature`` remembers the ramp as a colormap or preset last wrote
+it, so a hand edit is told apart (``is_edited``) and not replaced silently. The texture is created
+lazily (at render time, or when a colormap is picked): property update callbacks may run where
+datablocks cannot be created.
 
 Filling from a colormap: a ColorRamp holds at most 32 elements and interpolates its (scene-linear)
 colours linearly. The 32 stops are chosen greedily on the 256-entry sRGB table (insert a stop where

@@ -59,21 +59,17 @@ def text_mask(text, scale=1):
 
 # -- ticks ----------------------------------------------------------------------------------------
 def _fmt(v, step=None):
-    """Short label: fixed point where that stays short, else mantissa 'e' exponent (1.5e+29)."""
+    """Short label: fixed point where that stays short (as many decimals as ``step`` needs, else
+    three significant digits), else mantissa 'e' exponent (1.5e+29)."""
     if v == 0:
         return "0"
     a = abs(v)
     if 1e-3 <= a < 1e5:
-        dec = 0 if step is None else max(0, -int(math.floor(math.log10(step) + 1e-9)))
-        if step is None:
-            dec = max(0, 2 - int(math.floor(math.log10(a))))
-        text = f"{v:.{min(dec, 6)}f}"
-        if "." in text:
-            text = text.rstrip("0").rstrip(".")
-        return text
+        dec = -math.floor(math.log10(step) + 1e-9) if step else 2 - math.floor(math.log10(a))
+        text = f"{v:.{min(max(dec, 0), 6)}f}"
+        return text.rstrip("0").rstrip(".") if "." in text else text
     m, e = f"{v:.1e}".split("e")
-    m = m.rstrip("0").rstrip(".")
-    return f"{m}e{int(e):+d}"
+    return f"{m.rstrip('0').rstrip('.')}e{int(e):+d}"
 
 
 def ticks(vmin, vmax, log_scale=False, target=5):
@@ -99,8 +95,7 @@ def ticks(vmin, vmax, log_scale=False, target=5):
             v = k * step
             out.append(((v - lo) / (hi - lo), _fmt(0.0 if abs(v) < step * 1e-9 else v, step)))
     if len(out) < 2:
-        a_lbl = _fmt(lo) if not log_scale else _fmt(lo)
-        out = [(0.0, a_lbl)] + [t for t in out if 0.05 < t[0] < 0.95] + [(1.0, _fmt(hi))]
+        out = [(0.0, _fmt(lo))] + [t for t in out if 0.05 < t[0] < 0.95] + [(1.0, _fmt(hi))]
     return out
 
 
@@ -138,7 +133,8 @@ def legend_patch(entries, height):
     s = max(1, round(height / 90))  # font scale
     pad, gap = 3 * s, 2 * s
     title_h = GLYPH_H * s
-    bar_h = height - 2 * pad - title_h - gap - GLYPH_H * s // 2 * 2
+    half_label = GLYPH_H * s // 2  # the end labels reach half a glyph past the bar's ends
+    bar_h = height - 2 * pad - title_h - gap - 2 * half_label
     bar_w = max(6, height // 12)
     blocks = []
     for e in entries:
@@ -152,7 +148,7 @@ def legend_patch(entries, height):
     img = np.zeros((height, total_w, 4), np.float32)
     img[..., 3] = BG_ALPHA
     x = pad
-    y_bar = pad + title_h + gap + GLYPH_H * s // 2
+    y_bar = pad + title_h + gap + half_label
     for e, labels, title, w in blocks:
         _paint(img, title, pad, x, FG)
         # the bar: top = vmax; LUT colour, opaque, inside a 1-s frame
