@@ -210,7 +210,8 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
         if cg.nonfinite_voxels:
             warnings.warn(f"{base}: grid {g.name!r} has {cg.nonfinite_voxels:,} non-finite (NaN/Inf) "
                           "voxels; they were made inactive", RuntimeWarning, stacklevel=2)
-        cg.values = voxel_stats(g)
+        if g.grid_class != "level_set":  # level sets are coloured by position, not value
+            cg.values = voxel_stats(g)
         for name in lods:
             yield 0.05 + 0.95 * k / steps, f"{g.name}: {lod_label(name)} LOD"
             k += 1
