@@ -144,7 +144,7 @@ def render(engine, depsgraph):
 
 
 def _render(engine, depsgraph):
-    from . import scene_sync
+    from . import legend_overlay, scene_sync
 
     fresh = "CPU" not in _DEVICE
     if fresh:
@@ -159,6 +159,8 @@ def _render(engine, depsgraph):
     sync = scene_sync.SceneSync(viewport=False)
     rscene = sync.sync(depsgraph)
     tf = sync.transfer_function(scene.gaussvdb)
+    for msg in sync.warnings:  # transfer-function warnings (log scale over values <= 0)
+        engine.report({"WARNING"}, f"GaussVDB: {msg}")
     engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
     device.sync(rscene)
     t_sync = time.perf_counter() - t0
@@ -167,8 +169,12 @@ def _render(engine, depsgraph):
     engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")
     device.begin_frame(rscene, camera, tf)  # once per frame; the bands only draw pixels
     t_setup = time.perf_counter() - t1
+    def legend(combined):  # the colour legend (scene.gaussvdb.show_legend), over the image
+        return legend_overlay.composite(scene.gaussvdb, sync, tf, combined)
+
     try:
-        cancelled = _draw(engine, depsgraph, device, rscene, camera, tf, region)
+        cancelled, legend_drawn = _draw(engine, depsgraph, device, rscene, camera, tf, region,
+                                        legend)
     finally:
         device.end_frame()  # the frame's tile lists can be large
     t_render = time.perf_counter() - t1
@@ -176,16 +182,17 @@ def _render(engine, depsgraph):
                  seconds_render=t_render, width=width, height=height, region=list(region),
                  mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
                  threads=device.stats.get("threads"), cancelled=cancelled,
-                 value_range=[tf.vmin, tf.vmax])
+                 value_range=[tf.vmin, tf.vmax], warnings=list(sync.warnings), legend=legend_drawn)
     LAST_STATS.clear()
     LAST_STATS.update(stats)
     engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
                             f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
 
 
-def _draw(engine, depsgraph, device, rscene, camera, tf, region):
+def _draw(engine, depsgraph, device, rscene, camera, tf, region, finish):
     """The region's pixels, band by band, into a result of its size (with a border, Blender
-    places it in the image); returns whether the render was cancelled."""
+    places it in the image); ``finish(combined)`` draws over the finished image (-> whether it
+    drew). Returns (cancelled, what finish returned)."""
     x0, y0, x1, y1 = region
     scene = depsgraph.scene
     w, h = x1 - x0, y1 - y0
@@ -238,9 +245,10 @@ def _draw(engine, depsgraph, device, rscene, camera, tf, region):
             flush()
             engine.update_result(result)
             last_flush = now
+    finished = not cancelled and finish(combined)
     flush()
     engine.end_result(result)
-    return cancelled
+    return cancelled, finished
 
 
 def _band_end(row, band, end, align):

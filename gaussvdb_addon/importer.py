@@ -133,6 +133,7 @@ class ConvertedGrid:
     leaf_box: tuple  # (min, max) index-space box of the leaves and active tiles (voxel corners)
     lods: list = field(default_factory=list)  # [ConvertedLOD]
     nonfinite_voxels: int = 0  # NaN/Inf voxels made inactive before conversion
+    values: dict = field(default_factory=dict)  # kernels.render.voxel_stats: the auto range of any LOD
 
     @property
     def is_level_set(self) -> bool:
@@ -164,6 +165,8 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
     ``skipped`` (a list) collects (grid, reason) for grids left out.
     """
     vdb, lod = _kernels()
+    from ..kernels.render.transfer import voxel_stats
+
     lods = order_lods(lods)
     if weights not in lod.WEIGHTS:
         raise ImportError_(f"unknown weights {weights!r}; choose from {', '.join(lod.WEIGHTS)}")
@@ -207,6 +210,8 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
         if cg.nonfinite_voxels:
             warnings.warn(f"{base}: grid {g.name!r} has {cg.nonfinite_voxels:,} non-finite (NaN/Inf) "
                           "voxels; they were made inactive", RuntimeWarning, stacklevel=2)
+        if g.grid_class != "level_set":  # level sets are coloured by position, not value
+            cg.values = voxel_stats(g)
         for name in lods:
             yield 0.05 + 0.95 * k / steps, f"{g.name}: {lod_label(name)} LOD"
             k += 1
@@ -432,7 +437,8 @@ def _settings_to_object(obj, cg, stats, options):
     st.leaf_box_min = [float(v) for v in cg.leaf_box[0]]
     st.leaf_box_max = [float(v) for v in cg.leaf_box[1]]
     st.layout_version = LAYOUT_VERSION
-    st.stats_json = json.dumps({"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels})
+    st.stats_json = json.dumps({"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels,
+                                "values": cg.values})
     names = [cl.name for cl in cg.lods]
     # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
     st.viewport_lod = names[0]

@@ -2,7 +2,8 @@
 
 The point attributes themselves are described in importer.py (and README "Point-cloud layout");
 ``lods`` lists the LODs held in gs_lod order, ``viewport_lod``/``render_lod`` pick one of them like
-the Subdivision modifier's viewport and render levels.
+the Subdivision modifier's viewport and render levels. With ``use_scene_tf`` off the object's own
+transfer function (the TransferFunctionProps fields) colours it instead of the scene's.
 """
 
 import json
@@ -16,6 +17,8 @@ from bpy.props import (
     PointerProperty,
     StringProperty,
 )
+
+from .transfer_settings import TransferFunctionProps
 
 LOD_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
               "merged": "Merged"}
@@ -44,7 +47,7 @@ def lod_items(self, context):
     return items
 
 
-class GaussVDBObjectSettings(bpy.types.PropertyGroup):
+class GaussVDBObjectSettings(TransferFunctionProps, bpy.types.PropertyGroup):
     is_gaussvdb: BoolProperty(name="GaussVDB Object", default=False)
     source_file: StringProperty(name="Source File", subtype="FILE_PATH")
     grid_name: StringProperty(name="Grid")
@@ -68,12 +71,21 @@ class GaussVDBObjectSettings(bpy.types.PropertyGroup):
     leaf_box_max: FloatVectorProperty(name="Leaf Box Max", size=3)
     layout_version: IntProperty(name="Layout Version", default=0)
     stats_json: StringProperty(name="Statistics", description="Per-LOD figures as JSON")
+    use_scene_tf: BoolProperty(name="Use Scene Transfer Function", default=True, update=_tag,
+                               description="Colour this object with the scene's transfer function; "
+                                           "off: with its own colormap, range, log scale and density")
 
     def stats(self) -> dict:
         try:
             return json.loads(self.stats_json or "{}")
         except ValueError:
             return {}
+
+    def voxel_stats(self):
+        """The grid's value figures stored at import (kernels.render.voxel_stats: min, max,
+        positive_min, nonpositive, voxels), or None for objects imported before they were."""
+        v = self.stats().get("values")
+        return v if isinstance(v, dict) and "min" in v and "max" in v else None
 
 
 CLASSES = (GaussVDBObjectSettings,)

@@ -3,7 +3,11 @@
 - Import LOD presets: presets/operator/gaussvdb.import_vdb/*.py, the folder Blender's own operator
   presets use for `gaussvdb.import_vdb` (bl_options PRESET), so the file browser's preset menu and
   ours list the same files. Each sets `op.lods`, `op.weights`, `op.level_set_band`.
-- Colormap presets: presets/gaussvdb/colormap/*.py, each sets `scene.gaussvdb.colormap`.
+- Colormap presets: presets/gaussvdb/colormap/*.py, each sets the colormap name and the whole
+  ramp (positions, colours, alphas, interpolation) of the transfer function they are applied to:
+  an object's own (the object panel's ``gaussvdb_tf`` context pointer) or else the scene's.
+  Saving one writes the same (``preset_text``); the shipped files are ``preset_text`` of each
+  colormap on a fresh ramp.
 
 `bpy.utils.register_preset_path(EXTENSION_ROOT)` adds the shipped folder to the preset search path; presets
 the user saves go to the user's scripts/presets/<subdir> (AddPresetBase does that) and show up beside.
@@ -47,8 +51,26 @@ class GAUSSVDB_MT_colormap_presets(bpy.types.Menu):
     draw = bpy.types.Menu.draw_preset
 
 
+TF_DEFINE = 'settings = getattr(bpy.context, "gaussvdb_tf", None) or bpy.context.scene.gaussvdb'
+
+
+def preset_text(settings):
+    """The Python lines of a colormap preset of ``settings``: the colormap name, the alpha mode
+    and every ramp element (``load_ramp`` marks the result as not edited)."""
+    from . import transfer_ramp
+
+    lines = ["import bpy", TF_DEFINE, "", f"settings.colormap = {settings.colormap!r}",
+             f"settings.colormap_alpha = {settings.colormap_alpha!r}"]
+    stops = transfer_ramp.stops_of(settings)
+    if stops:
+        lines.append("settings.load_ramp([")
+        lines += [f"    ({p!r}, {tuple(c)!r})," for p, c in stops]
+        lines.append(f"], {settings.ramp_texture.color_ramp.interpolation!r})")
+    return "\n".join(lines) + "\n"
+
+
 class GAUSSVDB_OT_colormap_preset_add(AddPresetBase, bpy.types.Operator):
-    """Add or remove a colormap preset"""
+    """Add or remove a colormap preset (the whole ramp is saved)"""
 
     bl_idname = "gaussvdb.colormap_preset_add"
     bl_label = "Add Colormap Preset"
@@ -56,6 +78,14 @@ class GAUSSVDB_OT_colormap_preset_add(AddPresetBase, bpy.types.Operator):
     preset_subdir = COLORMAP_PRESET_SUBDIR
     preset_defines = ["settings = bpy.context.scene.gaussvdb"]
     preset_values = ["settings.colormap"]
+
+    def add(self, context, filepath):
+        from . import transfer_ramp, transfer_ui
+
+        settings = transfer_ui.target(context)
+        transfer_ramp.ensure_texture(settings)
+        with open(filepath, "w", encoding="utf-8") as f:
+            f.write(preset_text(settings))
 
 
 def draw_colormap_presets(layout):

@@ -8,7 +8,10 @@ from bpy.props import (
     FloatVectorProperty,
     IntProperty,
     PointerProperty,
+    StringProperty,
 )
+
+from .transfer_settings import TransferFunctionProps
 
 MODES = (
     ("PARTICLES", "Particles", "Each Gaussian classified by its value; closed-form optical depth"),
@@ -17,19 +20,8 @@ MODES = (
     ("PAPER", "Paper", "The seed paper's closest-hit renderer, for comparison only"),
 )
 
-COLORMAPS = (
-    "viridis", "plasma", "inferno", "magma", "cividis", "turbo", "jet", "coolwarm", "grayscale",
-)
-
 
 def _tag(self, context):
-    self.id_data.update_tag()
-
-
-def _colormap_changed(self, context):
-    from . import transfer_ramp
-
-    transfer_ramp.fill_from_colormap(self, self.colormap, self.colormap_alpha.lower())
     self.id_data.update_tag()
 
 
@@ -40,28 +32,9 @@ def _passes_changed(self, context):
     scene.update_tag()
 
 
-class GaussVDBRenderSettings(bpy.types.PropertyGroup):
+class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
+    # the transfer function (colormap, ramp, range, log scale, density): transfer_settings
     mode: EnumProperty(name="Mode", items=MODES, default="PARTICLES", update=_tag)
-    colormap: EnumProperty(
-        name="Colormap",
-        items=[(n, n.title(), f"{n} colormap") for n in COLORMAPS],
-        default="viridis",
-        update=_colormap_changed,
-    )
-    colormap_alpha: EnumProperty(
-        name="Alpha", default="RAMP", update=_colormap_changed,
-        description="The opacity a colormap preset writes into the ramp",
-        items=(("RAMP", "Ramp", "Alpha rises linearly from 0 at the low end to 1 at the high end"),
-               ("CONSTANT", "Constant", "Alpha 1 everywhere (density alone sets the opacity)"),
-               ("KEEP", "Keep", "Only the colours change; the ramp's alpha is kept")))
-    ramp_texture: PointerProperty(name="Transfer Function", type=bpy.types.Texture)
-    auto_range: BoolProperty(name="Auto Range", default=True, update=_tag,
-                             description="Value range from the data of the objects rendered")
-    value_min: FloatProperty(name="Min", default=0.0, update=_tag)
-    value_max: FloatProperty(name="Max", default=1.0, update=_tag)
-    log_scale: BoolProperty(name="Log Scale", default=False, update=_tag)
-    density: FloatProperty(name="Density", default=10.0, min=0.0, soft_max=1000.0, update=_tag,
-                           description="Extinction per world unit where the transfer function's alpha is 1")
     early_termination: FloatProperty(name="Early Termination", default=1e-3, min=0.0, max=0.5,
                                      precision=4, update=_tag,
                                      description="Stop a ray when its transmittance falls below this (0: never)")
@@ -86,6 +59,19 @@ class GaussVDBRenderSettings(bpy.types.PropertyGroup):
                                  description="World distance where the opacity reaches 0.5 (1e10: none)")
     use_pass_value: BoolProperty(name="Value", default=False, update=_passes_changed,
                                  description="Opacity-weighted mean data value along the ray")
+
+    # -- colour legend (kernels/render/legend.py draws it) -----------------------------------
+    show_legend: BoolProperty(name="Legend", default=False, update=_tag,
+                              description="Draw a scalar bar (colormap, range, ticks, grid name) "
+                                          "over the render and the viewport")
+    legend_corner: EnumProperty(name="Corner", default="BOTTOM_RIGHT", update=_tag,
+                                items=(("TOP_LEFT", "Top Left", ""), ("TOP_RIGHT", "Top Right", ""),
+                                       ("BOTTOM_LEFT", "Bottom Left", ""),
+                                       ("BOTTOM_RIGHT", "Bottom Right", "")))
+    legend_size: FloatProperty(name="Size", default=0.4, min=0.1, max=1.0, subtype="FACTOR",
+                               update=_tag, description="Legend height, as a fraction of the image height")
+    legend_units: StringProperty(name="Units", default="", update=_tag,
+                                 description="Shown after the grid name (e.g. kg/m3)")
 
 
 CLASSES = (GaussVDBRenderSettings,)

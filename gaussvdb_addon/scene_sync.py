@@ -8,6 +8,11 @@ the Gaussians again; no update at all returns the cached RenderScene without tou
 depsgraph (an unchanged scene costs nothing). Final renders use a fresh SceneSync per render
 (the render depsgraph is a new one), but share the module-level source-grid cache that the
 reference mode needs.
+
+Transfer functions: an object with "Use Scene Transfer Function" off gets its own
+(``RenderObject.tf``); the scene's auto range is the union over the objects that use the scene's.
+Auto ranges come from the voxel figures stored at import (the same for every LOD), else from the
+drawn LOD's values. ``warnings`` lists what the render should report (log scale on values <= 0).
 """
 
 import os
@@ -15,7 +20,8 @@ import threading
 
 import numpy as np
 
-from ..kernels.render import RenderObject, RenderScene, TransferFunction, value_range
+from ..kernels.render import RenderObject, RenderScene, TransferFunction, value_range, voxel_stats
+from ..kernels.render.legend import LegendEntry
 
 _GRID_CACHE = {}  # (abspath, grid, mtime, size) -> GridData
 _GRID_LOCK = threading.Lock()
@@ -139,20 +145,89 @@ def source_grid(obj):
 
 
 # -- settings -> kernel objects -----------------------------------------------------------------
-def transfer_function(settings, value_lo=None, value_hi=None, lut=None):
-    from . import transfer_ramp
-
-    if lut is None:
-        lut = transfer_ramp.sample(settings, 256)
-    if settings.auto_range and value_lo is not None:
-        lo, hi = value_lo, value_hi
+def effective_range(settings, auto=None):
+    """(lo, hi) a transfer function's settings use: ``auto`` (the data's range) when Auto Range is
+    on and known, else Min/Max; made positive for a log scale."""
+    if settings.auto_range and auto is not None:
+        lo, hi = auto
     else:
         lo, hi = settings.value_min, settings.value_max
         if hi <= lo:
             hi = lo + 1e-6
     if settings.log_scale and not (lo > 0 and hi > 0):
         lo, hi = (max(hi * 1e-3, 1e-12), max(hi, 1e-9)) if hi > 0 else (1e-3, 1.0)
+    return float(lo), float(hi)
+
+
+def transfer_function(settings, value_lo=None, value_hi=None, lut=None, *, create=True):
+    from . import transfer_ramp
+
+    if lut is None:
+        lut = transfer_ramp.sample(settings, 256, create=create)
+    lo, hi = effective_range(settings, None if value_lo is None else (value_lo, value_hi))
     return TransferFunction(lut, lo, hi, settings.log_scale, settings.density)
+
+
+def values_of(settings, gaussians=None):
+    """(lo, hi, positive min, fraction of voxels <= 0) of an object's data for its transfer
+    function; None for level sets (coloured by position) and when nothing is known. The voxel
+    figures stored at import are used when present (any LOD colours a value alike), else the
+    Gaussians of the drawn LOD (weighted by the voxels each stands for)."""
+    is_ls = (settings.grid_class or getattr(gaussians, "grid_class", "")) == "level_set"
+    if is_ls:
+        return None
+    st = settings.voxel_stats()
+    if st is not None:
+        n = max(int(st.get("voxels", 0)), 1)
+        return (float(st["min"]), float(st["max"]), st.get("positive_min"),
+                int(st.get("nonpositive", 0)) / n)
+    if gaussians is None:
+        return None
+    v = np.asarray(gaussians.values, np.float64)
+    if v.size == 0:
+        return None
+    vox = getattr(gaussians, "voxels", None)
+    w = np.ones(v.size) if vox is None else np.asarray(vox, np.float64)
+    fin = np.isfinite(v)
+    pos = v[v > 0]
+    return (float(v[fin].min()) if fin.any() else 0.0, float(v[fin].max()) if fin.any() else 0.0,
+            float(pos.min()) if pos.size else None, float(w[~(v > 0)].sum() / max(w.sum(), 1.0)))
+
+
+def auto_range(items, log_scale):
+    """Union of the ``values_of`` of the objects sharing one transfer function (log: from the
+    smallest positive value)."""
+    vals = []
+    for it in items:
+        if it is None:
+            continue
+        lo, hi, pmin, _ = it
+        vals += ([pmin, hi] if pmin is not None else []) if log_scale else [lo, hi]
+    return value_range(vals, log_scale) if vals else None
+
+
+def log_warning(grid, fraction):
+    """The message a log scale over values <= 0 earns (None when every voxel can be shown)."""
+    if not fraction > 0:
+        return None
+    pct = f"{100 * fraction:.0f}" if fraction >= 0.01 else f"{100 * fraction:.2g}"
+    return f"log scale: {pct}% of the voxels of {grid!r} are <= 0 and not shown"
+
+
+def scene_tf_users(scene):
+    """The GaussVDB objects of ``scene`` that render with the scene's transfer function."""
+    return [o for o in scene.objects if o.gaussvdb.is_gaussvdb and o.gaussvdb.use_scene_tf
+            and not o.hide_render]
+
+
+def stored_range(settings, objects):
+    """The (lo, hi) a transfer function uses for ``objects`` from what is stored on them (the
+    panel's "Range in use"), or None when an object has no stored figures (then it is known only
+    once a LOD is drawn)."""
+    items = [values_of(o.gaussvdb) for o in objects if o.gaussvdb.grid_class != "level_set"]
+    if settings.auto_range and any(it is None for it in items):
+        return None
+    return effective_range(settings, auto_range(items, settings.log_scale) or (0.0, 1.0))
 
 
 def level_set_color(settings):
@@ -170,7 +245,7 @@ def background(scene):
 
 
 class _Entry:
-    __slots__ = ("key", "gaussians", "grid", "vrange", "count")
+    __slots__ = ("key", "gaussians", "grid", "values", "count")
 
 
 class SceneSync:
@@ -187,6 +262,8 @@ class SceneSync:
         self.builds = 0  # RenderScenes built
         self.gaussians = 0
         self.value_range = (0.0, 1.0)
+        self.warnings = []  # what the render reports (log scale over values <= 0)
+        self.tf_users = []  # (grid name, object TF or None for the scene's) of non-level-set objects
 
     # -- change tracking (viewport) ---------------------------------------------------------
     def note_updates(self, updates):
@@ -226,14 +303,16 @@ class SceneSync:
             e.key = key
             e.gaussians = read_gaussians(obj_eval, lod, depsgraph)
             e.grid = None
-            v = np.asarray(e.gaussians.values)
-            is_ls = e.gaussians.grid_class == "level_set"
-            e.vrange = None if is_ls or v.size == 0 else (float(np.nanmin(v)), float(np.nanmax(v)))
+            e.values = values_of(orig.gaussvdb, e.gaussians)
             e.count = int(len(e.gaussians.values))
             self.entries[name] = e
             self.reads += 1
         if need_grid and e.grid is None:
             e.grid = source_grid(orig)
+            if e.values is None and e.grid.grid_class != "level_set" and e.grid.active_voxels:
+                st = voxel_stats(e.grid)
+                e.values = (st["min"], st["max"], st["positive_min"],
+                            st["nonpositive"] / max(st["voxels"], 1))
         return e
 
     def sync(self, depsgraph, force=False):
@@ -243,7 +322,8 @@ class SceneSync:
         scene = depsgraph.scene
         settings = scene.gaussvdb
         mode = settings.mode.lower()
-        objects, seen, ranges = [], set(), []
+        objects, seen, scene_items = [], set(), []
+        self.warnings, self.tf_users = [], []
         total = 0
         ls_color = level_set_color(settings)
         for inst in depsgraph.object_instances:
@@ -258,13 +338,19 @@ class SceneSync:
             e = self._entry(ob, lod, mode == "reference", depsgraph)
             seen.add(orig.name)
             mw = np.array(inst.matrix_world, np.float64)
+            own = None if gs.use_scene_tf else self._object_tf(gs, e)
+            if own is None:
+                scene_items.append(e.values)
+            tf_of = gs if own is not None else settings
+            if e.values is not None:
+                self.tf_users.append((gs.grid_name or orig.name, own))
+                if tf_of.log_scale:
+                    msg = log_warning(gs.grid_name or orig.name, e.values[3])
+                    if msg and msg not in self.warnings:
+                        self.warnings.append(msg)
             objects.append(RenderObject(e.gaussians, mw, grid=e.grid, level_set_color=ls_color,
-                                        name=orig.name))
+                                        name=orig.name, tf=own))
             total += e.count
-            if e.vrange is not None:
-                ranges.extend(e.vrange)
-            elif mode == "reference" and e.grid is not None and e.grid.grid_class != "level_set":
-                ranges.extend(_grid_range(e.grid))
         for name in list(self.entries):
             if name not in seen:
                 del self.entries[name]
@@ -274,23 +360,32 @@ class SceneSync:
                          tau_max=settings.tau_max, threads=threads,
                          passes=tuple(p for p, on in (("Depth", settings.use_pass_depth),
                                                       ("Value", settings.use_pass_value)) if on))
-        self.value_range = value_range(ranges, settings.log_scale) if ranges else (0.0, 1.0)
+        self.value_range = auto_range(scene_items, settings.log_scale) or (0.0, 1.0)
         self.gaussians = total
         self.scene = rs
         self.dirty = False
         self.builds += 1
         return rs
 
+    def _object_tf(self, gs, e):
+        """The object's own transfer function (its colormap/ramp, range, log scale, density)."""
+        lo, hi = auto_range([e.values], gs.log_scale) or (0.0, 1.0)  # as the scene's
+        return transfer_function(gs, lo, hi, create=not self.viewport)
+
     def transfer_function(self, settings, lut=None):
         lo, hi = self.value_range
         return transfer_function(settings, lo, hi, lut)
 
-
-def _grid_range(grid):
-    try:
-        from ..kernels.lod.build import value_range as vr
-
-        return list(vr(grid))
-    except Exception:
-        v = np.asarray(grid.leaf_values)
-        return [float(v.min()), float(v.max())] if v.size else []
+    def legend_entries(self, scene_tf, units=""):
+        """One LegendEntry per transfer function in use by a volume: the scene's (titled with the
+        grids that use it) and each object's own."""
+        suffix = f" ({units})" if units else ""
+        shared = [name for name, tf in self.tf_users if tf is None]
+        out = []
+        if shared:
+            out.append(LegendEntry(", ".join(dict.fromkeys(shared)) + suffix, scene_tf.lut,
+                                   scene_tf.vmin, scene_tf.vmax, scene_tf.log_scale))
+        for name, tf in self.tf_users:
+            if tf is not None:
+                out.append(LegendEntry(name + suffix, tf.lut, tf.vmin, tf.vmax, tf.log_scale))
+        return out

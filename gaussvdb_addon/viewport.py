@@ -133,6 +133,8 @@ class ViewportSession:
         self.device = None
         self.texture = None
         self.texture_key = None
+        self.tf = None  # the scene transfer function of the current job (the legend shows it)
+        self.legend_cache = {}
 
     # -- called from Blender's main thread ---------------------------------------------------
     def update(self, context, depsgraph):
@@ -166,6 +168,7 @@ class ViewportSession:
             if self.sync.scene is None:
                 self.sync.sync(depsgraph)
             tf = self.sync.transfer_function(depsgraph.scene.gaussvdb)
+            self.tf = tf
             self.submit(self.sync.scene, cam, tf)
         if self.error:
             self.engine.update_stats("", f"GaussVDB error: {self.error}")
@@ -178,6 +181,12 @@ class ViewportSession:
         if bpy.app.background:
             return
         self._draw_image(depsgraph.scene, image[2], region.width, region.height)
+        if depsgraph.scene.gaussvdb.show_legend and self.tf is not None:
+            from . import legend_overlay
+
+            legend_overlay.draw_viewport(depsgraph.scene.gaussvdb, self.sync, self.tf,
+                                         region.width, region.height, self.legend_cache,
+                                         self.engine, depsgraph.scene)
         if not self.schedule.converged:
             self.engine.tag_redraw()
 

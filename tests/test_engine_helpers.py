@@ -84,6 +84,7 @@ class FakeEngine:
         self.break_after = break_after
         self.t_break = None
         self.errors = []
+        self.reports = []  # (kind set, message) of every report
         self.stats = []
         self.progress = []
         self.result = None
@@ -127,7 +128,9 @@ class FakeEngine:
         self.stats.append(b)
 
     def report(self, kind, msg):
-        self.errors.append(msg)
+        self.reports.append((set(kind), msg))
+        if "WARNING" not in kind and "INFO" not in kind:
+            self.errors.append(msg)
 
     def error_set(self, msg):
         self.errors.append(msg)

@@ -1,13 +1,14 @@
 """`./gaussvdb render FILE.vdb [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
-[--threads N] [--density D] [--json]`
+[--threads N] [--density D] [--log-scale] [--legend] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
 (``bpy.ops.render.render(write_still=True)``) and writes the image. Prints a summary, or with
 --json one JSON line: seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
-threads, lod, grid, colormap, out. Options and the grid are checked before Blender starts; a
-refusal or a failed render is one line on stderr (tools/cli_errors.py).
+threads, lod, grid, colormap, out, warnings. Warnings (a log scale over values <= 0) go to stderr.
+Options and the grid are checked before Blender starts; a refusal or a failed render is one line
+on stderr (tools/cli_errors.py).
 """
 from __future__ import annotations
 
@@ -47,6 +48,8 @@ def parse(argv):
                    help="extinction per world unit (default: 10 per voxel-box diagonal, scaled to the grid)")
     p.add_argument("--weights", default="field", choices=WEIGHTS)
     p.add_argument("--transparent", action="store_true", help="transparent film (alpha kept)")
+    p.add_argument("--log-scale", action="store_true", help="log10 transfer function")
+    p.add_argument("--legend", action="store_true", help="draw the colour legend (scalar bar)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
     a.width, a.height = a.size
@@ -94,6 +97,8 @@ def build_scene(bpy, objs, args):
     s.mode = args.mode.upper()
     s.colormap = args.colormap
     s.threads = args.threads
+    s.show_legend = bool(getattr(args, "legend", False))
+    s.log_scale = bool(getattr(args, "log_scale", False))
     if args.density is not None:
         s.density = args.density
     else:
@@ -155,6 +160,8 @@ def quiet_render(final_render, scene, out) -> dict:
 def main(argv) -> int:
     args = parse(argv)
     stats = render(args)
+    for msg in stats.get("warnings", ()):
+        print(f"gaussvdb render: warning: {msg}", file=sys.stderr)
     if args.json:
         print(json.dumps(stats, sort_keys=True))
     else:

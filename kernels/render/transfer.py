@@ -125,3 +125,41 @@ def value_range(values, log_scale=False):
     if hi <= lo:
         lo = hi / 10.0 if log_scale else (0.0 if hi > 0 else hi - max(-hi, 1.0))
     return lo, hi
+
+
+def voxel_stats(grid, chunk=1 << 14):
+    """What the transfer function needs to know of a grid's active values, whatever LOD is drawn:
+    ``min``, ``max``, ``positive_min`` (None without positive values; the low end of a log
+    scale), ``nonpositive`` (active voxels <= 0 or NaN: what a log scale cannot show) and
+    ``voxels`` (active voxels, tiles counted by their size cubed). Duck-typed GridData: uint64
+    (N, 8) leaf masks, (N, 512) leaf values, tiles."""
+    lo, hi, pmin = np.inf, -np.inf, np.inf
+    bad = total = 0
+
+    def add(v, weight=None):
+        nonlocal lo, hi, pmin, bad, total
+        if v.size == 0:
+            return
+        w = np.ones(v.size, np.int64) if weight is None else weight
+        fin = np.isfinite(v)
+        if fin.any():
+            lo, hi = min(lo, float(v[fin].min())), max(hi, float(v[fin].max()))
+        pos = v[v > 0]
+        if pos.size:
+            pmin = min(pmin, float(pos.min()))
+        bad += int(w[~(v > 0)].sum())
+        total += int(w.sum())
+
+    masks = np.ascontiguousarray(grid.leaf_masks, np.uint64).reshape(-1, 8)
+    values = grid.leaf_values
+    for a in range(0, len(masks), chunk):
+        m = np.unpackbits(masks[a:a + chunk].view(np.uint8), axis=1, bitorder="little").astype(bool)
+        add(np.asarray(values[a:a + chunk], np.float64)[m])
+    act = np.asarray(grid.tile_active, bool)
+    if act.any():
+        sizes = np.asarray(grid.tile_sizes, np.int64)[act]
+        add(np.asarray(grid.tile_values, np.float64)[act], sizes ** 3)
+    if lo > hi:
+        lo = hi = 0.0
+    return {"min": lo, "max": hi, "positive_min": pmin if np.isfinite(pmin) else None,
+            "nonpositive": bad, "voxels": total}
