@@ -67,21 +67,21 @@ def scene_camera(scene, depsgraph, width, height):
 
 
 # -- passes ---------------------------------------------------------------------------------------
-def wanted_passes(scene):
-    s = scene.gaussvdb
-    out = []
-    if s.use_pass_depth:
-        out.append(("Depth", 1, "Z", "VALUE"))
-    if s.use_pass_value:
-        out.append(("Value", 1, "X", "VALUE"))
-    return out
+PASS_LAYOUT = {"Depth": (1, "Z", "VALUE"), "Value": (1, "X", "VALUE")}
+
+
+def wanted_passes(view_layer):
+    """(name, channels, channel ids, kind) of the view layer's extra passes (View Layer > Passes)."""
+    from .blender_settings import passes
+
+    return [(name, *PASS_LAYOUT[name]) for name in passes(view_layer)]
 
 
 def register_passes(engine, scene, renderlayer):
     if scene is None or renderlayer is None:
         return
     engine.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
-    for name, ch, chid, kind in wanted_passes(scene):
+    for name, ch, chid, kind in wanted_passes(renderlayer):
         engine.register_pass(scene, renderlayer, name, ch, chid, kind)
 
 
@@ -134,10 +134,10 @@ def _render(engine, depsgraph):
     layer_name = depsgraph.view_layer.name
     combined = np.zeros((height, width, 4), np.float32)
     extra = {name: np.full((height, width), 1e10 if name == "Depth" else 0.0, np.float32)
-             for name, *_ in wanted_passes(scene)}
+             for name, *_ in wanted_passes(depsgraph.view_layer)}
     result = engine.begin_result(0, 0, width, height, layer=layer_name)
     layer = result.layers[0]
-    for name, ch, chid, _kind in wanted_passes(scene):
+    for name, ch, chid, _kind in wanted_passes(depsgraph.view_layer):
         if layer.passes.find(name) < 0:
             engine.end_result(result, cancel=True)
             engine.add_pass(name, ch, chid, layer=layer_name)

@@ -1,12 +1,14 @@
-"""Scene render settings (Scene.gaussvdb): mode, transfer function, quality."""
+"""Scene render settings (Scene.gaussvdb): mode, transfer function, quality; the Value pass
+switch of each view layer (ViewLayer.gaussvdb). Threads, the Depth pass and the background are
+Blender's own settings (see blender_settings.py)."""
 
 import bpy
+from bpy.app.handlers import persistent
 from bpy.props import (
     BoolProperty,
     EnumProperty,
     FloatProperty,
     FloatVectorProperty,
-    IntProperty,
     PointerProperty,
 )
 
@@ -33,20 +35,23 @@ def _colormap_changed(self, context):
     self.id_data.update_tag()
 
 
-def _passes_changed(self, context):
-    scene = self.id_data
+def _value_pass_changed(self, context):
+    scene = self.id_data  # a view layer's settings belong to its scene
     for layer in scene.view_layers:
-        layer.update_render_passes()  # the compositor's Render Layers node shows the new sockets
+        layer.update_render_passes()  # the compositor's Render Layers node shows the new socket
     scene.update_tag()
 
 
 class GaussVDBRenderSettings(bpy.types.PropertyGroup):
-    mode: EnumProperty(name="Mode", items=MODES, default="PARTICLES", update=_tag)
+    mode: EnumProperty(name="Mode", items=MODES, default="PARTICLES", update=_tag,
+                       description="How the Gaussians are turned into an image")
     colormap: EnumProperty(
         name="Colormap",
-        items=[(n, n.title(), f"{n} colormap") for n in COLORMAPS],
+        items=[(n, n.title(), f"Fill the transfer function ramp with the {n} colormap")
+               for n in COLORMAPS],
         default="viridis",
         update=_colormap_changed,
+        description="Colormap preset written into the transfer function ramp",
     )
     colormap_alpha: EnumProperty(
         name="Alpha", default="RAMP", update=_colormap_changed,
@@ -54,47 +59,108 @@ class GaussVDBRenderSettings(bpy.types.PropertyGroup):
         items=(("RAMP", "Ramp", "Alpha rises linearly from 0 at the low end to 1 at the high end"),
                ("CONSTANT", "Constant", "Alpha 1 everywhere (density alone sets the opacity)"),
                ("KEEP", "Keep", "Only the colours change; the ramp's alpha is kept")))
-    ramp_texture: PointerProperty(name="Transfer Function", type=bpy.types.Texture)
+    ramp_texture: PointerProperty(name="Transfer Function", type=bpy.types.Texture,
+                                  description="Blend texture whose colour ramp maps data values "
+                                              "to colour and opacity")
     auto_range: BoolProperty(name="Auto Range", default=True, update=_tag,
                              description="Value range from the data of the objects rendered")
-    value_min: FloatProperty(name="Min", default=0.0, update=_tag)
-    value_max: FloatProperty(name="Max", default=1.0, update=_tag)
-    log_scale: BoolProperty(name="Log Scale", default=False, update=_tag)
+    value_min: FloatProperty(name="Min", default=0.0, update=_tag,
+                             description="Data value at the ramp's left end (Auto Range off)")
+    value_max: FloatProperty(name="Max", default=1.0, update=_tag,
+                             description="Data value at the ramp's right end (Auto Range off)")
+    log_scale: BoolProperty(name="Log Scale", default=False, update=_tag,
+                            description="Spread the ramp over log(value) (for data spanning decades)")
     density: FloatProperty(name="Density", default=10.0, min=0.0, soft_max=1000.0, update=_tag,
-                           description="Extinction per world unit where the transfer function's alpha is 1")
+                           description="Extinction where the transfer function's alpha is 1, in "
+                                       "the Density Unit (per object size: optical depth across "
+                                       "the object's box diagonal)")
+    density_unit: EnumProperty(
+        name="Density Unit", default="OBJECT", update=_tag,
+        description="What Density is measured per",
+        items=(("OBJECT", "Per Object Size",
+                "Optical depth across the diagonal of the largest rendered object's box: the same "
+                "image at any scale (10: about ten across)"),
+               ("WORLD", "Per World Unit", "Extinction per world unit (scene length unit)")))
     early_termination: FloatProperty(name="Early Termination", default=1e-3, min=0.0, max=0.5,
-                                     precision=4, update=_tag,
-                                     description="Stop a ray when its transmittance falls below this (0: never)")
+                                     precision=4, subtype="FACTOR", update=_tag,
+                                     description="Stop a ray when its transmittance (the fraction "
+                                                 "of light left) falls below this (0: never)")
     step_scale: FloatProperty(name="Step", default=0.5, min=0.01, max=4.0, update=_tag,
                               description="Sample step of the field and reference modes, in voxels")
     tau_max: FloatProperty(name="Max Optical Depth", default=0.1, min=1e-4, max=10.0, update=_tag,
                            description="Particles mode: subdivide overlapping segments until this optical depth")
-    threads: IntProperty(name="Threads", default=0, min=0, max=1024, update=_tag,
-                         description="CPU threads (0: all)")
     level_set_color: EnumProperty(
         name="Level Set Colour",
+        description="How level-set surfaces are coloured",
         items=(("X", "X", "Colormap over world X across the surface's box"),
                ("Y", "Y", "Colormap over world Y across the surface's box"),
                ("Z", "Height (Z)", "Colormap over world Z across the surface's box"),
                ("CONSTANT", "Constant", "One colour")),
         default="Z", update=_tag)
     level_set_constant: FloatVectorProperty(name="Surface Colour", subtype="COLOR", size=3,
-                                            default=(0.8, 0.8, 0.8), min=0.0, max=1.0, update=_tag)
+                                            default=(0.8, 0.8, 0.8), min=0.0, max=1.0, update=_tag,
+                                            description="Colour of level-set surfaces (Constant)")
     background: FloatVectorProperty(name="Background", subtype="COLOR", size=3,
-                                    default=(0.0, 0.0, 0.0), min=0.0, update=_tag)
-    use_pass_depth: BoolProperty(name="Depth", default=False, update=_passes_changed,
-                                 description="World distance where the opacity reaches 0.5 (1e10: none)")
-    use_pass_value: BoolProperty(name="Value", default=False, update=_passes_changed,
-                                 description="Opacity-weighted mean data value along the ray")
+                                    default=(0.0, 0.0, 0.0), min=0.0, update=_tag,
+                                    description="Colour behind the volumes when the scene has no "
+                                                "World (otherwise the World's colour is used)")
 
 
-CLASSES = (GaussVDBRenderSettings,)
+class GaussVDBViewLayerSettings(bpy.types.PropertyGroup):
+    use_pass_value: BoolProperty(name="Value", default=False, update=_value_pass_changed,
+                                 description="Render pass: opacity-weighted mean data value along "
+                                             "the ray (0 where nothing is hit)")
+
+
+CLASSES = (GaussVDBRenderSettings, GaussVDBViewLayerSettings)
+
+
+# -- settings of older versions, now Blender's own -------------------------------------------------
+def migrate(scene):
+    """Move the settings older versions kept on Scene.gaussvdb to Blender's: threads ->
+    Render > Performance, use_pass_depth -> each view layer's Z pass, use_pass_value -> each
+    view layer's Value pass. Files saved with them still hold them as ID properties."""
+    old = scene.get("gaussvdb")
+    if old is None:
+        return False
+    changed = False
+    threads = old.get("threads")
+    if threads is not None:
+        if int(threads) > 0:
+            scene.render.threads_mode = "FIXED"
+            scene.render.threads = int(threads)
+        del old["threads"]
+        changed = True
+    for key in ("use_pass_depth", "use_pass_value"):
+        on = old.get(key)
+        if on is None:
+            continue
+        for layer in scene.view_layers:
+            if on and key == "use_pass_depth":
+                layer.use_pass_z = True
+            elif on:
+                layer.gaussvdb.use_pass_value = True
+        del old[key]
+        changed = True
+    return changed
+
+
+@persistent
+def _migrate_on_load(_filepath=""):
+    for scene in bpy.data.scenes:
+        migrate(scene)
 
 
 def register_extra():
     bpy.types.Scene.gaussvdb = PointerProperty(type=GaussVDBRenderSettings)
+    bpy.types.ViewLayer.gaussvdb = PointerProperty(type=GaussVDBViewLayerSettings)
+    if _migrate_on_load not in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.append(_migrate_on_load)
 
 
 def unregister_extra():
-    if hasattr(bpy.types.Scene, "gaussvdb"):
-        del bpy.types.Scene.gaussvdb
+    if _migrate_on_load in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_migrate_on_load)
+    for owner in (bpy.types.ViewLayer, bpy.types.Scene):
+        if hasattr(owner, "gaussvdb"):
+            del owner.gaussvdb

@@ -16,6 +16,7 @@ import threading
 import numpy as np
 
 from ..kernels.render import RenderObject, RenderScene, TransferFunction, value_range
+from . import blender_settings
 
 _GRID_CACHE = {}  # (abspath, grid, mtime, size) -> GridData
 _GRID_LOCK = threading.Lock()
@@ -139,7 +140,8 @@ def source_grid(obj):
 
 
 # -- settings -> kernel objects -----------------------------------------------------------------
-def transfer_function(settings, value_lo=None, value_hi=None, lut=None):
+def transfer_function(settings, value_lo=None, value_hi=None, lut=None, size=None):
+    """``size``: the largest rendered object's world box diagonal (the density unit's scale)."""
     from . import transfer_ramp
 
     if lut is None:
@@ -152,7 +154,8 @@ def transfer_function(settings, value_lo=None, value_hi=None, lut=None):
             hi = lo + 1e-6
     if settings.log_scale and not (lo > 0 and hi > 0):
         lo, hi = (max(hi * 1e-3, 1e-12), max(hi, 1e-9)) if hi > 0 else (1e-3, 1.0)
-    return TransferFunction(lut, lo, hi, settings.log_scale, settings.density)
+    return TransferFunction(lut, lo, hi, settings.log_scale,
+                            blender_settings.extinction(settings, size))
 
 
 def level_set_color(settings):
@@ -160,13 +163,6 @@ def level_set_color(settings):
         # COLOR subtype properties hold scene-linear values already
         return tuple(float(c) for c in settings.level_set_constant)
     return LEVEL_SET_AXES.get(settings.level_set_color, "z")
-
-
-def background(scene):
-    if scene.render.film_transparent:
-        return (0.0, 0.0, 0.0, 0.0)
-    r, g, b = scene.gaussvdb.background
-    return (float(r), float(g), float(b), 1.0)
 
 
 class _Entry:
@@ -187,6 +183,7 @@ class SceneSync:
         self.builds = 0  # RenderScenes built
         self.gaussians = 0
         self.value_range = (0.0, 1.0)
+        self.size = 0.0  # largest world box diagonal of the objects rendered
 
     # -- change tracking (viewport) ---------------------------------------------------------
     def note_updates(self, updates):
@@ -245,6 +242,7 @@ class SceneSync:
         mode = settings.mode.lower()
         objects, seen, ranges = [], set(), []
         total = 0
+        size = 0.0
         ls_color = level_set_color(settings)
         for inst in depsgraph.object_instances:
             ob = inst.object
@@ -261,6 +259,7 @@ class SceneSync:
             objects.append(RenderObject(e.gaussians, mw, grid=e.grid, level_set_color=ls_color,
                                         name=orig.name))
             total += e.count
+            size = max(size, blender_settings.world_box_diagonal(ob, inst.matrix_world))
             if e.vrange is not None:
                 ranges.extend(e.vrange)
             elif mode == "reference" and e.grid is not None and e.grid.grid_class != "level_set":
@@ -268,14 +267,13 @@ class SceneSync:
         for name in list(self.entries):
             if name not in seen:
                 del self.entries[name]
-        threads = settings.threads or None
-        rs = RenderScene(objects=objects, background=background(scene), mode=mode,
+        rs = RenderScene(objects=objects, background=blender_settings.background(scene), mode=mode,
                          transmittance_min=settings.early_termination, step=settings.step_scale,
-                         tau_max=settings.tau_max, threads=threads,
-                         passes=tuple(p for p, on in (("Depth", settings.use_pass_depth),
-                                                      ("Value", settings.use_pass_value)) if on))
+                         tau_max=settings.tau_max, threads=blender_settings.threads(scene),
+                         passes=tuple(blender_settings.passes(depsgraph.view_layer)))
         self.value_range = value_range(ranges, settings.log_scale) if ranges else (0.0, 1.0)
         self.gaussians = total
+        self.size = size
         self.scene = rs
         self.dirty = False
         self.builds += 1
@@ -283,7 +281,7 @@ class SceneSync:
 
     def transfer_function(self, settings, lut=None):
         lo, hi = self.value_range
-        return transfer_function(settings, lo, hi, lut)
+        return transfer_function(settings, lo, hi, lut, self.size)
 
 
 def _grid_range(grid):
