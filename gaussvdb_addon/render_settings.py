@@ -120,9 +120,7 @@ def migrate(scene):
     """Move the settings older versions kept on Scene.gaussvdb to Blender's: threads ->
     Render > Performance, use_pass_depth -> each view layer's Z pass, use_pass_value -> each
     view layer's Value pass. Files saved with them still hold them as ID properties."""
-    old = scene.get("gaussvdb")
-    if old is None:
-        return False
+    old = scene.gaussvdb  # the stored values are still in the group, as plain ID properties
     changed = False
     threads = old.get("threads")
     if threads is not None:

@@ -45,7 +45,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                                       "Mantaflow cache only density, not the domain-wide shadow)")
     lods: EnumProperty(name="LODs", items=LOD_ITEMS, options={"ENUM_FLAG"}, default={"medium"},
                        description="LOD presets stored on each object (shift-click for several)")
-    weights: EnumProperty(name="Weights", default="field", items=(
+    weights: EnumProperty(name="Weights", default="field",
+                          description="How each Gaussian's size and amplitude are chosen", items=(
         ("field", "Field", "Normalized kernels times the volume they stand for (exact fields)"),
         ("paper", "Paper", "The paper's weights: sigma = half extent, value as peak")))
     level_set_band: BoolProperty(name="Zero-Crossing Band Only", default=True,
