@@ -208,6 +208,11 @@ class ConvertedGrid:
     seconds_compile: float = 0.0  # kernels compiled (or loaded from the cache) before converting
 
 
+    @property
+    def is_level_set(self) -> bool:
+        return self.grid_class == "level_set"
+
+
 _WARM = set()  # (grid class, LOD, weights, band, error) converted once in this process
 
 
@@ -232,10 +237,6 @@ def _warm_up(lod, grid, lods, weights, level_set_band, compute_error) -> float:
             lod.field_error(small, gset)
         _WARM.add((grid.grid_class, name, weights, level_set_band, compute_error))
     return time.perf_counter() - t0
-
-    @property
-    def is_level_set(self) -> bool:
-        return self.grid_class == "level_set"
 
 
 def _leaf_box(grid):
@@ -824,7 +825,8 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     old_data = obj.data
     try:
         obj.data = new.data
-        for key in ("source_file", "grid_class", "value_type", "lods", "stats_json", "layout_version"):
+        # (the source path stays as the user left it: relative, or found elsewhere)
+        for key in ("grid_class", "value_type", "lods", "stats_json", "layout_version"):
             setattr(st, key, getattr(new.gaussvdb, key))
         st.index_to_world = new.gaussvdb.index_to_world
         st.leaf_box_min = new.gaussvdb.leaf_box_min
