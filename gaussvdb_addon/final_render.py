@@ -103,16 +103,21 @@ def get_device():
 _WARM = set()  # (mode, passes) rendered once in this process: its kernels are loaded
 
 
-def warm_up(engine, device, rscene, camera, tf):
-    """The first render of a mode in this process renders the middle row first, so compiling
-    (or loading) the kernels is timed apart from the render; says so first when they are not
-    compiled yet. Returns the seconds it took (0 once warm)."""
+def announce_compile(engine, rscene):
+    """Console and status bar say so before the kernels compile for the first time."""
     from . import kernel_cache
 
+    if (rscene.mode, tuple(rscene.passes)) not in _WARM:
+        kernel_cache.announce("render", status=lambda msg: engine.update_stats("", msg))
+
+
+def warm_up(engine, device, rscene, camera, tf):
+    """The first render of a mode in this process renders the middle row first, so compiling
+    (or loading) the kernels is timed apart from the render. Returns the seconds it took (0 once
+    warm)."""
     key = (rscene.mode, tuple(rscene.passes))
     if key in _WARM:
         return 0.0
-    kernel_cache.announce("render", status=lambda msg: engine.update_stats("", msg))
     t0 = time.perf_counter()
     mid = camera.height // 2
     device.render(rscene, camera, tf, rows=(mid, mid + 1), cancel=engine.test_break)
@@ -148,6 +153,7 @@ def _render(engine, depsgraph):
     tf = sync.transfer_function(scene.gaussvdb)
     device = get_device()
     engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
+    announce_compile(engine, rscene)  # before the sync: it compiles the first kernels
     device.sync(rscene)
     t_sync = time.perf_counter() - t0
     t_compile = warm_up(engine, device, rscene, camera, tf)
