@@ -2,22 +2,19 @@
 
 import bpy
 
-# Built-in panels that make sense for this engine (Cycles' get_panels() pattern, in reverse:
-# we opt in to the panels we want rather than out of the ones we do not).
-_COMPAT_PANELS = (
-    "RENDER_PT_format", "RENDER_PT_frame_range", "RENDER_PT_output", "RENDER_PT_encoding",
-    "RENDER_PT_color_management", "RENDER_PT_color_management_curves",
-    "RENDER_PT_post_processing", "RENDER_PT_stamp", "RENDER_PT_dimensions", "RENDER_PT_time_stretching",
-    "RENDER_PT_format_presets", "RENDER_PT_output_views", "RENDER_PT_stamp_note", "RENDER_PT_stamp_burn",
-    "DATA_PT_camera", "DATA_PT_lens", "DATA_PT_camera_display", "DATA_PT_camera_dof",
-    "DATA_PT_context_camera", "DATA_PT_camera_safe_areas", "DATA_PT_custom_props_camera",
-    "DATA_PT_context_pointcloud", "DATA_PT_pointcloud_attributes", "DATA_PT_custom_props_pointcloud",
-    "OBJECT_PT_context_object", "OBJECT_PT_transform", "OBJECT_PT_relations", "OBJECT_PT_collections",
-    "OBJECT_PT_visibility", "OBJECT_PT_display", "OBJECT_PT_custom_props",
-    "VIEWLAYER_PT_layer", "VIEWLAYER_PT_layer_passes",
-    "SCENE_PT_scene", "SCENE_PT_unit", "SCENE_PT_custom_props",
-    "WORLD_PT_context_world", "TEXTURE_PT_context", "TEXTURE_PT_colors", "TEXTURE_PT_colors_ramp",
+# Blender's own panels shown for this engine, Cycles' get_panels() way: every panel meant for any
+# engine (its COMPAT_ENGINES holds BLENDER_RENDER: output, colour management, camera with its
+# background images, mesh and light data, physics with the Mantaflow domain, ...) except the ones
+# that do nothing here, plus Blender's Passes parent panel (our Data sub-panel hangs under it).
+# Camera depth of field is EEVEE/Workbench-only and stays hidden: the engine has no DOF.
+HIDDEN_PANELS = (
+    "DATA_PT_preview", "TEXTURE_PT_preview",  # no material/texture previews (bl_use_preview)
+    "RENDER_PT_stereoscopy", "DATA_PT_camera_stereoscopy",  # one view only
+    "RENDER_PT_freestyle", "MATERIAL_PT_freestyle_line",  # no Freestyle lines
+    "EEVEE_MATERIAL_PT_viewport_settings", "DATA_PT_context_lightprobe",
 )
+HIDDEN_PREFIXES = ("VIEWLAYER_PT_freestyle", "DATA_PT_lightprobe")  # Freestyle, EEVEE light probes
+EXTRA_PANELS = ("VIEWLAYER_PT_layer_passes",)
 
 
 class GaussVDBRenderEngine(bpy.types.RenderEngine):
@@ -61,18 +58,37 @@ class GaussVDBRenderEngine(bpy.types.RenderEngine):
 CLASSES = (GaussVDBRenderEngine,)
 
 
-def _panels():
-    for name in _COMPAT_PANELS:
-        panel = getattr(bpy.types, name, None)
-        if panel is not None and hasattr(panel, "COMPAT_ENGINES"):
-            yield panel
+def _all_panels(cls=bpy.types.Panel):
+    for sub in cls.__subclasses__():
+        yield sub
+        yield from _all_panels(sub)
+
+
+def compat_panels():
+    """Blender's panels this engine opts in to (the rule above, applied to the panels loaded)."""
+    out = []
+    for panel in _all_panels():
+        name = panel.__name__
+        engines = getattr(panel, "COMPAT_ENGINES", None)
+        if not isinstance(engines, set):
+            continue
+        wanted = name in EXTRA_PANELS or ("BLENDER_RENDER" in engines and name not in HIDDEN_PANELS
+                                          and not name.startswith(HIDDEN_PREFIXES))
+        if wanted and not name.startswith("GAUSSVDB_"):
+            out.append(panel)
+    return out
+
+
+_OPTED_IN = []
 
 
 def register_extra():
-    for panel in _panels():
+    _OPTED_IN[:] = compat_panels()
+    for panel in _OPTED_IN:
         panel.COMPAT_ENGINES.add(GaussVDBRenderEngine.bl_idname)
 
 
 def unregister_extra():
-    for panel in _panels():
+    for panel in _OPTED_IN:
         panel.COMPAT_ENGINES.discard(GaussVDBRenderEngine.bl_idname)
+    _OPTED_IN.clear()

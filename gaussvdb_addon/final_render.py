@@ -91,21 +91,21 @@ def render_region(scene, width, height):
 
 
 # -- passes ---------------------------------------------------------------------------------------
-def wanted_passes(scene):
-    s = scene.gaussvdb
-    out = []
-    if s.use_pass_depth:
-        out.append(("Depth", 1, "Z", "VALUE"))
-    if s.use_pass_value:
-        out.append(("Value", 1, "X", "VALUE"))
-    return out
+PASS_LAYOUT = {"Depth": (1, "Z", "VALUE"), "Value": (1, "X", "VALUE")}
+
+
+def wanted_passes(view_layer):
+    """(name, channels, channel ids, kind) of the view layer's extra passes (View Layer > Passes)."""
+    from .blender_settings import passes
+
+    return [(name, *PASS_LAYOUT[name]) for name in passes(view_layer)]
 
 
 def register_passes(engine, scene, renderlayer):
     if scene is None or renderlayer is None:
         return
     engine.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
-    for name, ch, chid, kind in wanted_passes(scene):
+    for name, ch, chid, kind in wanted_passes(renderlayer):
         engine.register_pass(scene, renderlayer, name, ch, chid, kind)
 
 
@@ -125,6 +125,13 @@ def get_device():
         LOAD_SECONDS[0] = dev.load_kernels()
         _DEVICE["CPU"] = dev
     return dev
+
+
+def announce_compile(engine):
+    """Console and status bar say so before the kernels compile for the first time."""
+    from . import kernel_cache
+
+    kernel_cache.announce("render", status=lambda msg: engine.update_stats("", msg))
 
 
 # -- the render -----------------------------------------------------------------------------------
@@ -147,10 +154,11 @@ def _render(engine, depsgraph):
     from . import legend_overlay, scene_sync
 
     fresh = "CPU" not in _DEVICE
-    if fresh:
+    if fresh:  # the device loads (on first use compiles) every render kernel when it is made
         engine.update_stats("", "GaussVDB | loading the kernels")
+        announce_compile(engine)
     device = get_device()
-    t_load = LOAD_SECONDS[0] if fresh else 0.0
+    t_compile = LOAD_SECONDS[0] if fresh else 0.0
     t0 = time.perf_counter()
     scene = depsgraph.scene
     width, height = render_size(scene)
@@ -169,6 +177,7 @@ def _render(engine, depsgraph):
     engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")
     device.begin_frame(rscene, camera, tf)  # once per frame; the bands only draw pixels
     t_setup = time.perf_counter() - t1
+
     def legend(combined):  # the colour legend (scene.gaussvdb.show_legend), over the image
         return legend_overlay.composite(scene.gaussvdb, sync, tf, combined)
 
@@ -178,7 +187,7 @@ def _render(engine, depsgraph):
     finally:
         device.end_frame()  # the frame's tile lists can be large
     t_render = time.perf_counter() - t1
-    stats = dict(seconds_load=t_load, seconds_sync=t_sync, seconds_setup=t_setup,
+    stats = dict(seconds_compile=t_compile, seconds_sync=t_sync, seconds_setup=t_setup,
                  seconds_render=t_render, width=width, height=height, region=list(region),
                  mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
                  threads=device.stats.get("threads"), cancelled=cancelled,
@@ -186,7 +195,9 @@ def _render(engine, depsgraph):
     LAST_STATS.clear()
     LAST_STATS.update(stats)
     engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
-                            f"render {t_render:.2f} s{' | cancelled' if cancelled else ''}")
+                            f"render {t_render:.2f} s"
+                            f"{f' | kernels {t_compile:.1f} s' if t_compile >= 0.5 else ''}"
+                            f"{' | cancelled' if cancelled else ''}")
 
 
 def _draw(engine, depsgraph, device, rscene, camera, tf, region, finish):
@@ -194,15 +205,14 @@ def _draw(engine, depsgraph, device, rscene, camera, tf, region, finish):
     places it in the image); ``finish(combined)`` draws over the finished image (-> whether it
     drew). Returns (cancelled, what finish returned)."""
     x0, y0, x1, y1 = region
-    scene = depsgraph.scene
     w, h = x1 - x0, y1 - y0
     layer_name = depsgraph.view_layer.name
     combined = np.zeros((h, w, 4), np.float32)
     extra = {name: np.full((h, w), 1e10 if name == "Depth" else 0.0, np.float32)
-             for name, *_ in wanted_passes(scene)}
+             for name, *_ in wanted_passes(depsgraph.view_layer)}
     result = engine.begin_result(0, 0, w, h, layer=layer_name)
     layer = result.layers[0]
-    for name, ch, chid, _kind in wanted_passes(scene):
+    for name, ch, chid, _kind in wanted_passes(depsgraph.view_layer):
         if layer.passes.find(name) < 0:
             engine.end_result(result, cancel=True)
             engine.add_pass(name, ch, chid, layer=layer_name)

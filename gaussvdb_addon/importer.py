@@ -28,6 +28,7 @@ The object's ``matrix_world`` is the grid's index-to-world transform.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
@@ -92,6 +93,77 @@ def split_names(text) -> list | None:
     return names or None
 
 
+# Grids of a Blender Mantaflow (smoke/fire) cache. `shadow` is a domain-wide constant -1 that
+# Blender does not bake: importing it by default would cover the whole domain.
+MANTAFLOW_GRIDS = {"density", "heat", "temperature", "flame", "fuel", "react", "shadow", "velocity",
+                   "color_r", "color_g", "color_b", "density_noise", "flame_noise", "fuel_noise",
+                   "react_noise", "color_r_noise", "color_g_noise", "color_b_noise"}
+MANTAFLOW_DEFAULT = ("density",)
+MANTAFLOW_LEFT_OUT = "Mantaflow cache: only density by default (name it under Grids to import it)"
+
+
+def cache_layout(names) -> str:
+    """'mantaflow' when the grid names are a Mantaflow cache's (density beside two or more of
+    its other grids), else '' (an ordinary file)."""
+    names = set(names)
+    if "density" in names and len(names & (MANTAFLOW_GRIDS - {"density"})) >= 2:
+        return "mantaflow"
+    return ""
+
+
+def default_grids(names):
+    """The grids an import picks when the user names none: (wanted or None for every scalar
+    grid, [(name, reason) left out])."""
+    if cache_layout(names) == "mantaflow":
+        wanted = [n for n in MANTAFLOW_DEFAULT if n in names]
+        return wanted, [(n, MANTAFLOW_LEFT_OUT) for n in names if n not in wanted]
+    return None, []
+
+
+def default_grids_hint(filepath) -> str:
+    """One line for the import dialog: what an empty Grids field imports from this file."""
+    generic = "Empty Grids: every scalar grid (a Mantaflow cache: density only)"
+    path = bpy_abspath(filepath)
+    if not path or not os.path.isfile(path):
+        return generic
+    from . import kernel_cache
+
+    if not kernel_cache.compiled("vdb"):  # never compile inside a dialog's draw
+        return generic
+    try:
+        st = os.stat(path)
+        key = (path, st.st_mtime_ns, st.st_size)
+        hint = _HINTS.get(key)
+        if hint is None:
+            names = [g.name for g in _kernels()[0].read_topology(path).grids]
+            wanted, _ = default_grids(names)
+            if wanted is not None:
+                rest = [n for n in names if n not in wanted]
+                hint = (f"Mantaflow cache: importing {', '.join(wanted)}; name "
+                        f"{', '.join(rest)} under Grids to add them")
+            else:
+                hint = "Empty Grids: every scalar grid (" + ", ".join(names) + ")"
+            _HINTS.clear()
+            _HINTS[key] = hint
+        return hint
+    except Exception:  # noqa: BLE001  (a broken file is reported by the import itself)
+        return generic
+
+
+_HINTS = {}
+
+
+def bpy_abspath(path) -> str:
+    if not path:
+        return ""
+    try:
+        import bpy
+
+        return os.path.abspath(bpy.path.abspath(path))
+    except ImportError:
+        return os.path.abspath(path)
+
+
 def selected_paths(filepath, directory="", files=()) -> list:
     """The files chosen in the file browser (several when shift-selected), else ``filepath``."""
     names = [f.name for f in files if getattr(f, "name", "")] if files else []
@@ -134,10 +206,37 @@ class ConvertedGrid:
     lods: list = field(default_factory=list)  # [ConvertedLOD]
     nonfinite_voxels: int = 0  # NaN/Inf voxels made inactive before conversion
     values: dict = field(default_factory=dict)  # kernels.render.voxel_stats: the auto range of any LOD
+    seconds_compile: float = 0.0  # kernels compiled (or loaded from the cache) before converting
 
     @property
     def is_level_set(self) -> bool:
         return self.grid_class == "level_set"
+
+
+_WARM = set()  # (grid class, LOD, weights, band, error) converted once in this process
+
+
+def _warm_up(lod, grid, lods, weights, level_set_band, compute_error) -> float:
+    """Convert a few leaves of ``grid`` first, so that compiling (or loading) the kernels on
+    first use is timed apart from the LODs' own conversion times; seconds it took."""
+    todo = [n for n in lods if (grid.grid_class, n, weights, level_set_band, compute_error) not in _WARM]
+    if not todo or grid.leaf_values is None or not len(grid.leaf_origins):
+        return 0.0
+    k = min(8, len(grid.leaf_origins))
+    masks = np.ascontiguousarray(grid.leaf_masks[:k])
+    small = dataclasses.replace(
+        grid, leaf_origins=np.ascontiguousarray(grid.leaf_origins[:k]), leaf_masks=masks,
+        leaf_values=np.ascontiguousarray(grid.leaf_values[:k]), tile_origins=grid.tile_origins[:0],
+        tile_sizes=grid.tile_sizes[:0], tile_values=grid.tile_values[:0],
+        tile_active=grid.tile_active[:0],
+        active_voxels=int(np.unpackbits(masks.view(np.uint8)).sum()))
+    t0 = time.perf_counter()
+    for name in todo:
+        gset = lod.build_lod(small, name, weights, level_set_band=level_set_band)
+        if compute_error:
+            lod.field_error(small, gset)
+        _WARM.add((grid.grid_class, name, weights, level_set_band, compute_error))
+    return time.perf_counter() - t0
 
 
 def _leaf_box(grid):
@@ -174,8 +273,14 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
     base = os.path.basename(filepath)
     skipped = [] if skipped is None else skipped
     wanted = split_names(grids)
+    from . import kernel_cache
+
+    kernel_cache.announce("vdb", "lod")
     yield 0.0, f"reading {base}"
     try:
+        if wanted is None:  # defaults per known cache layout (a Mantaflow cache: density)
+            wanted, left_out = default_grids([g.name for g in vdb.read_topology(filepath).grids])
+            skipped.extend(left_out)
         vfile = vdb.read_vdb(filepath, wanted, max_bytes=max_bytes)
     except vdb.VDBFormatError as err:
         raise ImportError_(f"cannot import {base}: {err.reason}"
@@ -212,6 +317,7 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
                           "voxels; they were made inactive", RuntimeWarning, stacklevel=2)
         if g.grid_class != "level_set":  # level sets are coloured by position, not value
             cg.values = voxel_stats(g)
+        cg.seconds_compile = _warm_up(lod, g, lods, weights, level_set_band, compute_error)
         for name in lods:
             yield 0.05 + 0.95 * k / steps, f"{g.name}: {lod_label(name)} LOD"
             k += 1
@@ -438,7 +544,7 @@ def _settings_to_object(obj, cg, stats, options):
     st.leaf_box_max = [float(v) for v in cg.leaf_box[1]]
     st.layout_version = LAYOUT_VERSION
     st.stats_json = json.dumps({"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels,
-                                "values": cg.values})
+                                "values": cg.values, "seconds_compile": cg.seconds_compile})
     names = [cl.name for cl in cg.lods]
     # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
     st.viewport_lod = names[0]
@@ -564,6 +670,9 @@ def status_message(objs, skipped=()) -> str:
         parts.append(text)
     if skipped:
         parts.append("skipped " + ", ".join(sorted({str(n) for n, _ in skipped})))
+    compile_s = sum(json.loads(o.gaussvdb.stats_json or "{}").get("seconds_compile", 0.0) for o in objs)
+    if compile_s >= 1.0:
+        parts.append(f"kernels compiled or loaded in {compile_s:.1f} s (not in the times above)")
     return "; ".join(parts) or "nothing imported"
 
 
@@ -702,7 +811,9 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     st = obj.gaussvdb
     if not st.is_gaussvdb:
         raise ImportError_(f"{obj.name} is not a GaussVDB object")
-    path = bpy.path.abspath(st.source_file)
+    from . import source_path
+
+    path = source_path.absolute(st)
     converted = convert_file(path, [st.grid_name], lod_names(obj) or ["medium"], st.weights or "field",
                              st.level_set_band, st.vector_magnitude, max_bytes, compute_error,
                              progress, cancel)
@@ -718,7 +829,8 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     old_data = obj.data
     try:
         obj.data = new.data
-        for key in ("source_file", "grid_class", "value_type", "lods", "stats_json", "layout_version"):
+        # (the source path stays as the user left it: relative, or found elsewhere)
+        for key in ("grid_class", "value_type", "lods", "stats_json", "layout_version"):
             setattr(st, key, getattr(new.gaussvdb, key))
         st.index_to_world = new.gaussvdb.index_to_world
         st.leaf_box_min = new.gaussvdb.leaf_box_min

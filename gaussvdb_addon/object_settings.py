@@ -18,6 +18,7 @@ from bpy.props import (
     StringProperty,
 )
 
+from . import source_path
 from .transfer_settings import TransferFunctionProps
 
 LOD_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
@@ -49,7 +50,13 @@ def lod_items(self, context):
 
 class GaussVDBObjectSettings(TransferFunctionProps, bpy.types.PropertyGroup):
     is_gaussvdb: BoolProperty(name="GaussVDB Object", default=False)
-    source_file: StringProperty(name="Source File", subtype="FILE_PATH")
+    source_volume: PointerProperty(name="Source", type=bpy.types.Volume,
+                                   description="Volume datablock holding the source file's path "
+                                               "(a Blender file path: relative, missing-file search)")
+    source_file: StringProperty(name="Source File", subtype="FILE_PATH",
+                                get=lambda self: source_path.get_source_file(self),
+                                set=lambda self, value: source_path.set_source_file(self, value),
+                                description="The .vdb file the Gaussians were converted from")
     grid_name: StringProperty(name="Grid")
     grid_class: StringProperty(name="Class")
     value_type: StringProperty(name="Value Type")

@@ -6,11 +6,20 @@ import bpy
 
 from .. import operators
 from ..kernels import cachedir
-from . import engine, object_panel, object_settings, presets, render_panel, render_settings, transfer_ui
+from . import (
+    engine,
+    object_panel,
+    object_settings,
+    presets,
+    render_panel,
+    render_settings,
+    source_path,
+    transfer_ui,
+)
 
 # Properties first (others point at them), panels last (they draw the rest).
-MODULES = (object_settings, render_settings, presets, operators, engine, render_panel, object_panel,
-           transfer_ui)
+MODULES = (object_settings, source_path, render_settings, presets, operators, engine, render_panel,
+           object_panel, transfer_ui)
 
 
 def register():

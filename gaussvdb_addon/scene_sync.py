@@ -22,6 +22,7 @@ import numpy as np
 
 from ..kernels.render import RenderObject, RenderScene, TransferFunction, value_range, voxel_stats
 from ..kernels.render.legend import LegendEntry
+from . import blender_settings
 
 _GRID_CACHE = {}  # (abspath, grid, mtime, size) -> GridData
 _GRID_LOCK = threading.Lock()
@@ -159,13 +160,16 @@ def effective_range(settings, auto=None):
     return float(lo), float(hi)
 
 
-def transfer_function(settings, value_lo=None, value_hi=None, lut=None, *, create=True):
+def transfer_function(settings, value_lo=None, value_hi=None, lut=None, *, create=True, size=None):
+    """``size``: the world box diagonal the density unit "Per Object Size" is relative to (the
+    largest of the objects using this transfer function)."""
     from . import transfer_ramp
 
     if lut is None:
         lut = transfer_ramp.sample(settings, 256, create=create)
     lo, hi = effective_range(settings, None if value_lo is None else (value_lo, value_hi))
-    return TransferFunction(lut, lo, hi, settings.log_scale, settings.density)
+    return TransferFunction(lut, lo, hi, settings.log_scale,
+                            blender_settings.extinction(settings, size))
 
 
 def values_of(settings, gaussians=None):
@@ -237,13 +241,6 @@ def level_set_color(settings):
     return LEVEL_SET_AXES.get(settings.level_set_color, "z")
 
 
-def background(scene):
-    if scene.render.film_transparent:
-        return (0.0, 0.0, 0.0, 0.0)
-    r, g, b = scene.gaussvdb.background
-    return (float(r), float(g), float(b), 1.0)
-
-
 class _Entry:
     __slots__ = ("key", "gaussians", "grid", "values", "count")
 
@@ -264,6 +261,7 @@ class SceneSync:
         self.value_range = (0.0, 1.0)
         self.warnings = []  # what the render reports (log scale over values <= 0)
         self.tf_users = []  # (grid name, object TF or None for the scene's) of non-level-set objects
+        self.size = 0.0  # largest world box diagonal of the objects on the scene's transfer function
 
     # -- change tracking (viewport) ---------------------------------------------------------
     def note_updates(self, updates):
@@ -325,6 +323,7 @@ class SceneSync:
         objects, seen, scene_items = [], set(), []
         self.warnings, self.tf_users = [], []
         total = 0
+        size = 0.0
         ls_color = level_set_color(settings)
         for inst in depsgraph.object_instances:
             ob = inst.object
@@ -338,9 +337,11 @@ class SceneSync:
             e = self._entry(ob, lod, mode == "reference", depsgraph)
             seen.add(orig.name)
             mw = np.array(inst.matrix_world, np.float64)
-            own = None if gs.use_scene_tf else self._object_tf(gs, e)
+            diag = blender_settings.world_box_diagonal(ob, inst.matrix_world)
+            own = None if gs.use_scene_tf else self._object_tf(gs, e, diag)
             if own is None:
                 scene_items.append(e.values)
+                size = max(size, diag)
             tf_of = gs if own is not None else settings
             if e.values is not None:
                 self.tf_users.append((gs.grid_name or orig.name, own))
@@ -351,30 +352,31 @@ class SceneSync:
             objects.append(RenderObject(e.gaussians, mw, grid=e.grid, level_set_color=ls_color,
                                         name=orig.name, tf=own))
             total += e.count
+
         for name in list(self.entries):
             if name not in seen:
                 del self.entries[name]
-        threads = settings.threads or None
-        rs = RenderScene(objects=objects, background=background(scene), mode=mode,
+        rs = RenderScene(objects=objects, background=blender_settings.background(scene), mode=mode,
                          transmittance_min=settings.early_termination, step=settings.step_scale,
-                         tau_max=settings.tau_max, threads=threads,
-                         passes=tuple(p for p, on in (("Depth", settings.use_pass_depth),
-                                                      ("Value", settings.use_pass_value)) if on))
+                         tau_max=settings.tau_max, threads=blender_settings.threads(scene),
+                         passes=tuple(blender_settings.passes(depsgraph.view_layer)))
         self.value_range = auto_range(scene_items, settings.log_scale) or (0.0, 1.0)
         self.gaussians = total
+        self.size = size
         self.scene = rs
         self.dirty = False
         self.builds += 1
         return rs
 
-    def _object_tf(self, gs, e):
-        """The object's own transfer function (its colormap/ramp, range, log scale, density)."""
+    def _object_tf(self, gs, e, size):
+        """The object's own transfer function (its colormap/ramp, range, log scale, density; the
+        density unit relative to its own size)."""
         lo, hi = auto_range([e.values], gs.log_scale) or (0.0, 1.0)  # as the scene's
-        return transfer_function(gs, lo, hi, create=not self.viewport)
+        return transfer_function(gs, lo, hi, create=not self.viewport, size=size)
 
     def transfer_function(self, settings, lut=None):
         lo, hi = self.value_range
-        return transfer_function(settings, lo, hi, lut)
+        return transfer_function(settings, lo, hi, lut, size=self.size)
 
     def legend_entries(self, scene_tf, units=""):
         """One LegendEntry per transfer function in use by a volume: the scene's (titled with the

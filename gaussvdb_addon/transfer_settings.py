@@ -37,23 +37,37 @@ class TransferFunctionProps:
     annotations of base classes too)."""
 
     colormap: EnumProperty(name="Colormap", items=COLORMAP_ITEMS, default="viridis",
-                           update=_colormap_changed)
+                           update=_colormap_changed,
+                           description="Colormap preset written into the transfer function ramp")
     colormap_alpha: EnumProperty(name="Alpha", default="RAMP", items=ALPHA_ITEMS,
                                  update=_colormap_changed,
                                  description="The opacity a colormap preset writes into the ramp")
-    ramp_texture: PointerProperty(name="Transfer Function", type=bpy.types.Texture)
+    ramp_texture: PointerProperty(name="Transfer Function", type=bpy.types.Texture,
+                                  description="Blend texture whose colour ramp maps data values "
+                                              "to colour and opacity")
     ramp_signature: StringProperty(name="Ramp Signature", options={"HIDDEN"},
                                    description="The ramp as last loaded from a colormap or preset "
                                                "(a differing ramp was edited by hand)")
     auto_range: BoolProperty(name="Auto Range", default=True, update=_tag,
                              description="Value range from the voxels of the grids drawn (the "
                                          "same for every LOD)")
-    value_min: FloatProperty(name="Min", default=0.0, update=_tag)
-    value_max: FloatProperty(name="Max", default=1.0, update=_tag)
-    log_scale: BoolProperty(name="Log Scale", default=False, update=_tag)
+    value_min: FloatProperty(name="Min", default=0.0, update=_tag,
+                             description="Data value at the ramp's left end (Auto Range off)")
+    value_max: FloatProperty(name="Max", default=1.0, update=_tag,
+                             description="Data value at the ramp's right end (Auto Range off)")
+    log_scale: BoolProperty(name="Log Scale", default=False, update=_tag,
+                            description="Spread the ramp over log(value) (for data spanning decades)")
     density: FloatProperty(name="Density", default=10.0, min=0.0, soft_max=1000.0, update=_tag,
-                           description="Extinction per world unit where the transfer function's "
-                                       "alpha is 1")
+                           description="Extinction where the transfer function's alpha is 1, in "
+                                       "the Density Unit (per object size: optical depth across "
+                                       "the object's box diagonal)")
+    density_unit: EnumProperty(
+        name="Density Unit", default="OBJECT", update=_tag,
+        description="What Density is measured per",
+        items=(("OBJECT", "Per Object Size",
+                "Optical depth across the diagonal of the largest rendered object's box: the same "
+                "image at any scale (10: about ten across)"),
+               ("WORLD", "Per World Unit", "Extinction per world unit (scene length unit)")))
 
     def load_ramp(self, stops, interpolation="LINEAR"):
         """Replace the ramp by ``stops`` [(position, (r, g, b, a)), ...] (linear colour), as a

@@ -49,8 +49,9 @@ def _fmt(v):
     return f"{v:.4g}"
 
 
-def draw_transfer(layout, settings, objects):
-    """The transfer function of ``settings`` (scene or object), for ``objects`` that use it."""
+def draw_transfer(layout, settings, objects, presets_row=True):
+    """The transfer function of ``settings`` (scene or object), for ``objects`` that use it;
+    ``presets_row``: the colormap preset menu in the panel (the scene's has it in its header)."""
     from . import presets, scene_sync, transfer_ramp
 
     layout.context_pointer_set("gaussvdb_tf", settings)
@@ -60,7 +61,8 @@ def draw_transfer(layout, settings, objects):
                            text=settings.colormap.title() + (" (Edited)" if edited else ""),
                            icon="COLOR")
     row.prop(settings, "colormap_alpha", text="")
-    presets.draw_colormap_presets(layout)
+    if presets_row:
+        presets.draw_colormap_presets(layout)
     tex = settings.ramp_texture
     if tex is not None and tex.color_ramp is not None:
         layout.template_color_ramp(tex, "color_ramp", expand=True)
@@ -68,7 +70,9 @@ def draw_transfer(layout, settings, objects):
         layout.label(text="The colormap preset is used until the ramp is created", icon="INFO")
     layout.use_property_split = True
     layout.use_property_decorate = False
-    layout.prop(settings, "density")
+    col = layout.column(align=True)
+    col.prop(settings, "density")
+    col.prop(settings, "density_unit", text="Per")
     layout.prop(settings, "auto_range")
     col = layout.column(align=True)
     col.active = not settings.auto_range

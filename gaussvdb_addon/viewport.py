@@ -169,6 +169,10 @@ class ViewportSession:
                 self.sync.sync(depsgraph)
             tf = self.sync.transfer_function(depsgraph.scene.gaussvdb)
             self.tf = tf
+            if self.device is None and self.image is None:  # the worker's first render
+                from . import kernel_cache
+
+                kernel_cache.announce("render", status=lambda msg: self.engine.update_stats("", msg))
             self.submit(self.sync.scene, cam, tf)
         if self.error:
             self.engine.update_stats("", f"GaussVDB error: {self.error}")

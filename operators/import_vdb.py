@@ -41,10 +41,12 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                               options={"HIDDEN", "SKIP_SAVE", "SKIP_PRESET"})
 
     grids: StringProperty(name="Grids", default="", options={"SKIP_PRESET"},
-                          description="Comma-separated grid names (empty: every scalar grid)")
+                          description="Comma-separated grid names (empty: every scalar grid; of a "
+                                      "Mantaflow cache only density, not the domain-wide shadow)")
     lods: EnumProperty(name="LODs", items=LOD_ITEMS, options={"ENUM_FLAG"}, default={"medium"},
                        description="LOD presets stored on each object (shift-click for several)")
-    weights: EnumProperty(name="Weights", default="field", items=(
+    weights: EnumProperty(name="Weights", default="field",
+                          description="How each Gaussian's size and amplitude are chosen", items=(
         ("field", "Field", "Normalized kernels times the volume they stand for (exact fields)"),
         ("paper", "Paper", "The paper's weights: sigma = half extent, value as peak")))
     level_set_band: BoolProperty(name="Zero-Crossing Band Only", default=True,
@@ -63,6 +65,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         row.operator("gaussvdb.import_preset_add", text="", icon="ADD")
         row.operator("gaussvdb.import_preset_add", text="", icon="REMOVE").remove_active = True
         layout.prop(self, "grids")
+        if not self.grids.strip():
+            from ..gaussvdb_addon import importer
+
+            layout.label(text=importer.default_grids_hint(self.filepath), icon="INFO")
         col = layout.column(heading="LODs")
         col.prop(self, "lods")
         layout.prop(self, "weights")
@@ -82,10 +88,12 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                     vector_magnitude=self.vector_magnitude, compute_error=self.measure_error)
 
     def execute(self, context):
-        from ..gaussvdb_addon import importer
+        from ..gaussvdb_addon import importer, kernel_cache
 
         paths = importer.selected_paths(self.filepath, self.directory, self.files)
         big = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) >= MODAL_MIN_BYTES
+        # the first use compiles for about a minute: run modal, so the status bar says so first
+        big = big or not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
         if big and context.window is not None and not bpy.app.background and not self.options.is_repeat:
             return self._start_modal(context, paths)
         try:
@@ -113,7 +121,11 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         wm.progress_begin(0, 1000)
         self._timer = wm.event_timer_add(0.01, window=context.window)
         wm.modal_handler_add(self)
-        context.workspace.status_text_set("Importing OpenVDB as Gaussians... (Esc to cancel)")
+        from ..gaussvdb_addon import kernel_cache
+
+        first = not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
+        context.workspace.status_text_set((kernel_cache.MESSAGE + " " if first else "")
+                                          + "Importing OpenVDB as Gaussians... (Esc to cancel)")
         return {"RUNNING_MODAL"}
 
     def _stop_modal(self, context):

@@ -18,8 +18,8 @@ def _cloud_scene(bpy, scene):
     setup_render(scene, W, H)
     s = scene.gaussvdb
     s.mode = "PARTICLES"
-    s.density = 0.6
-    s.threads = 2
+    s.density_unit, s.density = "WORLD", 0.6
+    scene.render.threads_mode, scene.render.threads = "FIXED", 2
     scene.render.film_transparent = True
 
 

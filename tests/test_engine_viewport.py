@@ -166,7 +166,7 @@ def test_viewport_worker_refines(bpy_module, scene):
     fr, vp = _mod("final_render"), _mod("viewport")
     make_object(bpy, "Cloud", lattice(8, 8, 8), values=np.linspace(0, 1, 512))
     add_camera(bpy, scene, (3.5, -30.0, 3.5), (math.pi / 2, 0.0, 0.0))
-    scene.gaussvdb.threads = 1
+    scene.render.threads_mode, scene.render.threads = "FIXED", 1
     dg = bpy.context.evaluated_depsgraph_get()
 
     class Eng:

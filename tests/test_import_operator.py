@@ -69,7 +69,9 @@ def test_operator_on_every_shared_file(scene, bpy_module, path):
                                       measure_error=False)
     assert res == {"FINISHED"}
     f = vdb.read_vdb(path)
-    grids = [g for g in f.grids if g.active_voxels > 0]
+    imp = _mods()[0]
+    wanted, _ = imp.default_grids([g.name for g in f.grids])  # a Mantaflow cache: density
+    grids = [g for g in f.grids if g.active_voxels > 0 and (wanted is None or g.name in wanted)]
     objs = [o for o in scene.objects if o.gaussvdb.is_gaussvdb]
     assert sorted(o.gaussvdb.grid_name for o in objs) == sorted(g.name for g in grids)
     for obj in objs:
@@ -94,7 +96,8 @@ def test_sample_every_preset_and_status_message(scene, bpy_module):
         assert 0 < s["nrmse"] < 1 and s["bytes"] > 0 and s["seconds"] >= 0
     msg = imp.status_message(objs)
     assert msg.startswith("density: ") and "Gaussians (Low / Medium / High / Variance / Merged)" in msg
-    assert "field NRMSE" in msg and msg.rstrip().endswith("B")
+    first = msg.split("; ")[0]  # (a first use adds the kernels' compile time after it)
+    assert "field NRMSE" in first and first.rstrip().endswith("B")
     # Viewport LOD coarsest, Render LOD finest (like Subdivision's levels); both editable.
     assert obj.gaussvdb.viewport_lod == "low" and obj.gaussvdb.render_lod == "merged"
     obj.gaussvdb.viewport_lod = "medium"

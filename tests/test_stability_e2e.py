@@ -59,9 +59,10 @@ def sync_scene(bpy, scene, mode="PARTICLES"):
     ss = _mod("gaussvdb_addon.scene_sync")
     s = scene.gaussvdb
     s.mode = mode
-    s.use_pass_depth = True
-    s.use_pass_value = True
-    s.threads = 2
+    s.density_unit = "WORLD"  # the closed forms here take density per world unit
+    scene.view_layers[0].use_pass_z = True
+    scene.view_layers[0].gaussvdb.use_pass_value = True
+    scene.render.threads_mode, scene.render.threads = "FIXED", 2
     scene.render.film_transparent = True  # alpha = the volume's opacity alone
     sync = ss.SceneSync(viewport=False)
     rs = sync.sync(bpy.context.evaluated_depsgraph_get())

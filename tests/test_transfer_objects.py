@@ -39,7 +39,8 @@ def _two_volumes(bpy, scene):
     add_camera(bpy, scene, (11.5, -30.0, 3.5), (math.pi / 2, 0.0, 0.0), ortho_scale=32.0)
     setup_render(scene, W, H)
     s = scene.gaussvdb
-    s.density, s.threads = 2.0, 1
+    s.density_unit, s.density = "WORLD", 2.0
+    scene.render.threads_mode, scene.render.threads = "FIXED", 1
     scene.render.film_transparent = True
     return smoke, hot
 
@@ -149,7 +150,7 @@ def test_log_scale_warns_with_the_fraction_not_shown(bpy_module, scene, tmp_path
     frac = float((dense <= 0).mean())
     add_camera(bpy, scene, (7.5, -30.0, 3.5), (math.pi / 2, 0.0, 0.0), ortho_scale=24.0)
     setup_render(scene, 32, 16)
-    scene.gaussvdb.threads = 1
+    scene.render.threads_mode, scene.render.threads = "FIXED", 1
     eng, _ = _render(bpy)
     assert not any(k == {"WARNING"} for k, _ in eng.reports)  # linear scale: nothing to say
     scene.gaussvdb.log_scale = True

@@ -96,14 +96,13 @@ def build_scene(bpy, objs, args):
     s = scene.gaussvdb
     s.mode = args.mode.upper()
     s.colormap = args.colormap
-    s.threads = args.threads
     s.show_legend = bool(getattr(args, "legend", False))
     s.log_scale = bool(getattr(args, "log_scale", False))
+    if args.threads:
+        r.threads_mode, r.threads = "FIXED", args.threads
     if args.density is not None:
-        s.density = args.density
-    else:
-        # about 10 optical-depth units across the box at alpha 1 (a readable default at any scale)
-        s.density = 10.0 / max(float(np.linalg.norm(hi - lo)), 1e-9)
+        s.density_unit, s.density = "WORLD", args.density
+    # else the default: density 10 per object size, about 10 optical-depth units across the box
     for o in objs:
         o.gaussvdb.render_lod = args.lod
         o.gaussvdb.viewport_lod = args.lod
