@@ -68,9 +68,11 @@ class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
                                           "over the render and the viewport")
     legend_corner: EnumProperty(name="Corner", default="BOTTOM_RIGHT", update=_tag,
                                 description="Corner of the image the legend sits in",
-                                items=(("TOP_LEFT", "Top Left", ""), ("TOP_RIGHT", "Top Right", ""),
-                                       ("BOTTOM_LEFT", "Bottom Left", ""),
-                                       ("BOTTOM_RIGHT", "Bottom Right", "")))
+                                items=(("TOP_LEFT", "Top Left", "The image's top left corner"),
+                                       ("TOP_RIGHT", "Top Right", "The image's top right corner"),
+                                       ("BOTTOM_LEFT", "Bottom Left", "The image's bottom left corner"),
+                                       ("BOTTOM_RIGHT", "Bottom Right",
+                                        "The image's bottom right corner")))
     legend_size: FloatProperty(name="Size", default=0.4, min=0.1, max=1.0, subtype="FACTOR",
                                update=_tag, description="Legend height, as a fraction of the image height")
     legend_units: StringProperty(name="Units", default="", update=_tag,
