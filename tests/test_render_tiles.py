@@ -133,3 +133,24 @@ def test_footprints_are_conservative(view):
         assert (ts - hw)[hit].min() >= lb[g] - 1e-9, g
         tight += 1
     assert tight > 10
+
+
+def test_supports_straddling_the_eye_plane_cover_only_what_they_can():
+    """An eye inside a volume: supports that straddle the eye's plane far off to the side reach
+    no pixel and are listed in no tile; one around the eye covers them all; one straddling the
+    plane beside the eye covers only the side it is on."""
+    dev = CPUDevice()
+    # camera at the origin looking along -z, 64 x 64, 60 degrees; 3-sigma supports
+    cam = Camera(np.eye(4), 64, 64, "persp", fov_x=np.radians(60.0))
+    centres = np.array([[50.0, 0.0, 0.0], [0.0, -40.0, 0.5], [0.2, 0.1, 0.3], [1.2, 0.0, -1.0]])
+    sc = RenderScene([RenderObject(gaussian_set(centres, 0.5, 1.0, 1.0))], support_k=3.0)
+    dev.sync(sc)
+    start, items, masks, lb = dev._screen_tiles(0, sc, cam, np.ones(4))
+    assert start.shape[0] == 65
+    g = [int(np.argmin(np.abs(dev.gacc.g_mu - c).sum(1))) for c in centres]  # ids by position
+    per_g = np.bincount(items, minlength=4)
+    assert per_g[g[0]] == 0 and per_g[g[1]] == 0  # off to the side: nothing
+    assert per_g[g[2]] == 64  # around the eye: every tile
+    tiles = np.repeat(np.arange(64), np.diff(start))[items == g[3]]
+    # its front part spans u >= -0.3 (x / -z); the bound is -0.437: image columns 8 and up
+    assert 0 < tiles.size < 64 and (tiles % 8).min() == 1

@@ -49,6 +49,36 @@ def _roots(c, cz, sxx, sxz, szz):
     return min(u0, u1), max(u0, u1)
 
 
+@njit(**_jit, inline="always")
+def _straddle_range(c, cz, sxx, sxz, szz, off, ext):
+    """Image coordinates u (one axis) of the eye planes x = u (-z) that meet a support straddling
+    the eye's plane (cz^2 <= szz), clipped to the image's span [off - ext/2, off + ext/2]. With
+    a = cz^2 - szz <= 0 the plane meets the support where a u^2 + 2 b u + c' <= 0: outside the
+    roots, i.e. two unbounded pieces. One piece inside the span -> that piece; both -> the whole
+    span (conservative); none -> an empty range. A camera inside a volume sees most of the
+    supports around it far off to the side, so they now cover few tiles or none."""
+    lo = off - 0.5 * ext
+    hi = off + 0.5 * ext
+    a = cz * cz - szz
+    b = c * cz - sxz
+    cc = c * c - sxx
+    disc = b * b - a * cc
+    if a >= 0.0 or disc <= 0.0:
+        return lo, hi  # a degenerate (tangent) case, or every plane meets the support
+    r = math.sqrt(disc)
+    u0 = min((-b - r) / a, (-b + r) / a)
+    u1 = max((-b - r) / a, (-b + r) / a)
+    left = u0 >= lo  # the piece u <= u0 reaches into the span
+    right = u1 <= hi  # the piece u >= u1 does
+    if left and right:
+        return lo, hi
+    if left:
+        return lo, min(u0, hi)
+    if right:
+        return max(u1, lo), hi
+    return hi + 1.0, lo - 1.0  # neither: no pixel (_px_range: empty when lo > hi)
+
+
 @parallel_njit(**_jit)
 def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
     """Per Gaussian: box = pixel rectangle (i0, i1, j0, j1; empty when i0 > i1 or j0 > j1) and lb =
@@ -99,9 +129,12 @@ def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
             j0, j1 = _px_range(v0, v1, offy, ey, H)
             rmax = onorm[ob] * k / min(g_inv[g, 0], g_inv[g, 1], g_inv[g, 2])
             lbg = math.sqrt(cx * cx + cy * cy + cz * cz) - rmax
-        else:  # the support reaches the eye's plane: it may cover any pixel
-            i0, i1, j0, j1 = 0, W - 1, 0, H - 1
-            lbg = -INF
+        else:  # the support straddles the eye's plane (or holds the eye): see _straddle_range
+            ua, ub = _straddle_range(cx, cz, sxx, sxz, szz, offx, ex)
+            va, vb = _straddle_range(cy, cz, syy, syz, szz, offy, ey)
+            i0, i1 = _px_range(ua, ub, offx, ex, W)
+            j0, j1 = _px_range(va, vb, offy, ey, H)
+            lbg = -INF  # its chords may enter behind the eye: tested first
         box[g, 0], box[g, 1], box[g, 2], box[g, 3] = i0, i1, j0, j1
         # a hair below, so a chord rounded in index space is never found after its time
         lb[g] = lbg - 1e-9 * (abs(lbg) + 1.0)
