@@ -18,7 +18,7 @@ from bpy.props import (
 )
 
 LOD_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
-              "merged": "Merged"}
+              "merged": "Merged", "adaptive": "Adaptive"}
 
 
 def _tag(self, context):

@@ -9,6 +9,7 @@ import pytest
 from conftest import shared_data_files
 
 from kernels.lod import build_lod, decode_compact, encode_compact, field_error
+from kernels.lod.encoding import VALUE_TOL
 from kernels.lod.synthetic import grid_from_dense, random_sparse_grid
 
 N = 24
@@ -19,11 +20,11 @@ def _xyz():
 
 
 def blob():
-    """A smooth Gaussian blob inside a ball (the fog stops at the ball, value 0.19 there)."""
+    """A smooth, wavy field inside a ball (the fog stops at the ball, at values 0.2 to 1)."""
     x, y, z = _xyz()
-    r2 = (x - 11.5) ** 2 + (y - 11.5) ** 2 + (z - 11.5) ** 2
-    m = r2 <= 100
-    return grid_from_dense(np.where(m, np.exp(-r2 / 60.0), 0).astype(np.float32), m, origin=(-8, 0, 16))
+    m = (x - 11.5) ** 2 + (y - 11.5) ** 2 + (z - 11.5) ** 2 <= 100
+    v = 0.6 + 0.4 * np.cos(0.4 * x) * np.cos(0.3 * y + 0.2 * z)
+    return grid_from_dense(np.where(m, v, 0).astype(np.float32), m, origin=(-8, 0, 16))
 
 
 def step_edge():
@@ -33,9 +34,9 @@ def step_edge():
 
 
 def checkerboard():
-    """4^3 squares of 0.3 and 1.0 (a step edge on three axes)."""
+    """8^3 squares of 0.3 and 1.0 (step edges on three axes)."""
     x, y, z = _xyz()
-    v = np.where(((x // 4) + (y // 4) + (z // 4)) % 2, 1.0, 0.3).astype(np.float32)
+    v = np.where(((x // 8) + (y // 8) + (z // 8)) % 2, 1.0, 0.3).astype(np.float32)
     return grid_from_dense(v, np.ones((N,) * 3, bool))
 
 
@@ -51,15 +52,16 @@ def test_meets_tolerance_on_known_fields(make, tol):
     assert e["nrmse"] <= tol
     assert gs.params["achieved_nrmse"] == e["nrmse"]
     assert np.all(gs.amplitudes >= 0) and np.all(np.isfinite(gs.amplitudes))
-    assert gs.count < build_lod(g, "high").count  # coarse where the field allows it
 
 
-def test_smooth_blob_far_fewer_than_high_at_highs_error():
-    g = blob()
+@pytest.mark.parametrize("make,most", [(blob, 0.05), (step_edge, 0.5), (checkerboard, 0.5)],
+                         ids=["blob", "step", "checker"])
+def test_fewer_than_high_at_highs_error(make, most):
+    g = make()
     high = build_lod(g, "high")
     gs = build_lod(g, "adaptive", tolerance=field_error(g, high)["nrmse"])
     assert gs.params["tolerance_met"]
-    assert gs.count <= 0.25 * high.count, (gs.count, high.count)
+    assert gs.count <= most * high.count, (gs.count, high.count)
 
 
 def test_max_error_bound():
@@ -92,9 +94,10 @@ def test_level_set_and_tiles():
     x, y, z = _xyz()
     phi = (np.sqrt((x - 11.5) ** 2 + (y - 11.5) ** 2 + (z - 11.5) ** 2) - 8.0).astype(np.float32)
     ls = grid_from_dense(phi, np.abs(phi) <= 3, grid_class="level_set")
-    gs = build_lod(ls, "adaptive", tolerance=0.15)
+    gs = build_lod(ls, "adaptive", tolerance=0.2)
     e = field_error(ls, gs)
-    assert gs.params["tolerance_met"] and e["nrmse"] <= 0.15 and e["surface_iou"] > 0.9
+    assert gs.params["tolerance_met"] and e["nrmse"] <= 0.2 and e["surface_iou"] > 0.9
+    assert gs.count < build_lod(ls, "high").count
     assert np.all(gs.values == 1)
     g = blob()
     g.tile_origins, g.tile_sizes = np.array([[-16, 0, 16]], np.int32), np.array([8], np.int32)
@@ -112,11 +115,13 @@ def test_round_trip():
     for grid in (g, ls, blob()):
         gs = build_lod(grid, "adaptive", tolerance=0.05)
         dec = decode_compact(encode_compact(gs))
-        for k in ("group_origins", "group_start", "offsets", "sigmas", "values", "amplitudes",
-                  "voxels"):
+        for k in ("group_origins", "group_start", "offsets", "sigmas", "amplitudes", "voxels"):
             np.testing.assert_array_equal(getattr(dec, k), getattr(gs, k), err_msg=k)
+        # values: float16 when every one survives within VALUE_TOL x range (encoding.py)
+        rng = float(np.ptp(gs.values)) or 1.0
+        np.testing.assert_allclose(dec.values, gs.values, rtol=0, atol=VALUE_TOL * rng)
         assert dec.lod == "adaptive"
-        assert field_error(grid, dec)["nrmse"] == pytest.approx(gs.params["achieved_nrmse"], rel=1e-9)
+        assert field_error(grid, dec)["nrmse"] == pytest.approx(gs.params["achieved_nrmse"], rel=0.02)
 
 
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
@@ -161,3 +166,19 @@ def test_shared_smoke_at_highs_error_with_half_the_gaussians():
     gs = build_lod(g, "adaptive", tolerance=tol)
     assert gs.params["tolerance_met"] and field_error(g, gs)["nrmse"] <= tol
     assert gs.count <= 0.5 * high.count, (gs.count, high.count)
+
+
+def test_import_operator_builds_the_adaptive_lod(scene, bpy_module):
+    """The import dialog's Adaptive LOD with its tolerance, through the real operator."""
+    from conftest import SAMPLE
+
+    bpy = bpy_module
+    res = bpy.ops.gaussvdb.import_vdb(filepath=SAMPLE, grids="density", lods={"adaptive", "high"},
+                                      tolerance=0.12, measure_error=True)
+    assert res == {"FINISHED"}
+    obj = bpy.context.scene.objects[0]
+    assert obj.gaussvdb.lods == "high,adaptive"
+    high, adaptive = obj.gaussvdb.stats()["lods"]
+    assert adaptive["tolerance"] == pytest.approx(0.12)
+    assert adaptive["tolerance_met"] == (adaptive["nrmse"] <= 0.12)
+    assert adaptive["count"] < high["count"]

@@ -12,7 +12,9 @@ weights; active tiles are one Gaussian each, as in every preset. Each round
   3. stops when the SSE is within the budget N (tolerance x range)^2 (and every |residual| within
      max_error when that is set), else splits the nodes with the largest SSE per added Gaussian into
      their non-empty octants, just enough of them to close the gap if a split removed SPLIT_GAIN of
-     a node's SSE (nodes over max_error always split).
+     a node's SSE (nodes over max_error always split). A node's SSE is half the SSE over its cell
+     and half its share of every voxel's error (its part of the field there): a coarse Gaussian
+     whose tail spills over an edge is split, not only the fine ones where the error shows.
 Smooth regions keep coarse Gaussians; edges and detail end at single voxels. The result is then
 measured with `field_error` itself on the quantized amplitudes, and params say what was met:
 `tolerance_met` is never true unless that measurement is within the tolerance.
@@ -32,10 +34,10 @@ from .fit import fit_weights
 from .gaussian_set import GaussianSet
 from .refine import _true_voxels, factors_from_codes, quantize_factors
 
-MAX_ROUNDS = 8  # fit + split rounds (a leaf reaches single voxels in 3 splits)
+MAX_ROUNDS = 12  # fit + split rounds (a leaf reaches single voxels in 3 splits)
 CG_STEPS = 6  # per round: conjugate-gradient steps, then
 MM_STEPS = 2  # monotone projected steps (and the measuring pass)
-SPLIT_GAIN = 0.6  # assumed share of a node's SSE that splitting it removes
+SPLIT_GAIN = 1.0  # assumed share of a node's SSE that splitting it removes: split the fewest
 MARGIN = 0.98  # fit to 0.98 x the tolerance: the amplitude quantization (0.27 %) must not tip it
 
 
@@ -187,7 +189,7 @@ def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, ma
         va0 = vals.astype(np.float64) * W.amplitudes64(sig, vox, "field")
         w0 = va0 * np.concatenate([f, f_tile])
         st = pair_lists(table, cent, sig.astype(np.float64), k)
-        w, cres, sse, mx = fit_weights(st, w0, np.sign(va0), CG_STEPS, MM_STEPS)
+        w, cres, sse, mx, share = fit_weights(st, w0, np.sign(va0), CG_STEPS, MM_STEPS)
         fac = np.divide(w, va0, out=np.ones_like(w), where=va0 != 0)
         f, f_tile = fac[:m], fac[m:]
         total, worst = float(np.sum(sse * table["cw"])), float(mx.max(initial=0.0))
@@ -196,6 +198,7 @@ def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, ma
         if (total <= budget and (max_error <= 0 or worst <= max_error)) or rounds >= MAX_ROUNDS:
             break
         node_sse, node_max = node_errors(nodes[0], nodes[1], nodes[2], leaf_cell, cres)
+        node_sse = 0.5 * (node_sse + share[:m])  # where the error is, and whose field makes it
         chosen = _choose(node_sse, node_max, nchild, nodes[2] > 1, total - budget,
                          max_error / MARGIN if max_error > 0 else 0.0)
         if not len(chosen):

@@ -27,20 +27,21 @@ OMEGA = 1.6  # over-relaxation (< 2)
 @parallel_njit(cache=True)
 def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, pnum, pden, cres):
     """Residual at every active voxel of every cell into cres (0 elsewhere); per pair
-    pnum = sum g r and, with with_den, pden = sum g s1. Returns the per-cell SSE and max |r|."""
+    pnum = sum g r and, with with_den, pden = sum g s1; else pden = the pair's share of the SSE,
+    sum |w g| r^2 / sum_k |w_k g_k| (each voxel's error split among the Gaussians that make its
+    field). Returns the per-cell SSE and max |r|."""
     nc = corg.shape[0]
     k2 = k * k
     sse = np.zeros(nc)
     mx = np.zeros(nc)
-    ones = np.ones(w.shape[0]) if with_den else np.zeros(0)
+    ones = np.ones(w.shape[0]) if with_den else np.abs(w)
     for c in prange(nc):
         acc = np.zeros(512)
         one = np.zeros(512)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
         cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
-        if with_den:
-            cell_mixture(c, corg, cstart, pg, cent, sig, ones, k2, one, q, e)
+        cell_mixture(c, corg, cstart, pg, cent, sig, ones, k2, one, q, e)  # s1, or sum |w g|
         act = np.zeros(512, np.bool_)
         s2 = 0.0
         m = 0.0
@@ -56,6 +57,8 @@ def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, pnum, pden, 
                     r = np.float64(cref[c, i]) - acc[i]
                     cres[c, i] = r
                     act[i] = True
+                    if not with_den:
+                        one[i] = r * r / one[i] if one[i] > 1e-30 else 0.0
                     s2 += r * r
                     m = max(m, abs(r))
         sse[c], mx[c] = s2, m
@@ -84,8 +87,7 @@ def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, pnum, pden, 
                             num += ps * cres[c, i]
                             den += ps * one[i]
             pnum[p] = num
-            if with_den:
-                pden[p] = den
+            pden[p] = den if with_den else den * abs(w[g])
     return sse, mx
 
 
@@ -99,7 +101,8 @@ def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
     on the normal equations (Jacobi-preconditioned by diag(A^T A 1), unconstrained), the sign clip,
     then mm_steps projected MM steps, each monotone, and a last pass that only measures.
     st: error.pair_lists output; sign: +1 / -1 / 0 per Gaussian (0: the weight stays 0).
-    Returns (w, per-cell residuals (C, 512), per-cell SSE, per-cell max |r|)."""
+    Returns (w, per-cell residuals (C, 512), per-cell SSE, per-cell max |r|, per-Gaussian share of
+    the SSE)."""
     w = np.array(w, np.float64)
     m, npair = len(w), len(st["pg"])
     pnum, pden = np.empty(npair), np.empty(npair)
@@ -138,4 +141,4 @@ def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
         if it == mm_steps:
             break
         w = w + omega * dinv * at(pnum)
-    return w, cres, sse, mx
+    return w, cres, sse, mx, at(pden)
