@@ -257,8 +257,10 @@ def _leaf_box(grid):
 
 
 def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
-                  vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None):
+                  vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None, *,
+                  tolerance=0.02):
     """Generator: yields (fraction, text) before each step; returns [ConvertedGrid].
+    ``tolerance``: the adaptive LOD's field NRMSE bound (the other presets ignore it).
 
     Drive it with ``convert_file`` (synchronously) or one step per timer event (the modal operator).
     ``skipped`` (a list) collects (grid, reason) for grids left out.
@@ -323,15 +325,16 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             k += 1
             t0 = time.perf_counter()
             try:
-                gset = lod.build_lod(g, name, weights, level_set_band=level_set_band)
+                extra = dict(tolerance=tolerance) if name == "adaptive" else {}
+                gset = lod.build_lod(g, name, weights, level_set_band=level_set_band, **extra)
             except MemoryError as err:
                 raise ImportError_(f"{g.name}: out of memory building the {name} LOD") from err
             seconds = time.perf_counter() - t0
             error = {}
             if compute_error:
                 try:
-                    error = {k_: v for k_, v in lod.field_error(g, gset).items()
-                             if isinstance(v, (int, float, str))}
+                    measured = gset.params.get("field_error") or lod.field_error(g, gset)
+                    error = {k_: v for k_, v in measured.items() if isinstance(v, (int, float, str))}
                 except MemoryError:
                     error = {}
             cg.lods.append(ConvertedLOD(name, gset, seconds, error))
@@ -371,10 +374,10 @@ class _Progress:
 
 def convert_file(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
                  vector_magnitude=False, max_bytes=None, compute_error=True, progress=None,
-                 cancel=None, skipped=None) -> list:
+                 cancel=None, skipped=None, *, tolerance=0.02) -> list:
     """Read and convert one file (no Blender data is touched). Raises ImportError_/ImportCancelled."""
     steps = convert_steps(filepath, grids, lods, weights, level_set_band, vector_magnitude,
-                          max_bytes, compute_error, skipped)
+                          max_bytes, compute_error, skipped, tolerance=tolerance)
     report = _Progress(progress) if progress is not None else None
     try:
         while True:
@@ -456,9 +459,11 @@ def _lod_stats(cg: ConvertedGrid, per_point: int) -> list:
             if key in cl.error:
                 item["error_seconds" if key == "seconds" else key] = cl.error[key]
         params = getattr(s, "params", {}) or {}
-        for key in ("value_min", "value_max", "band_threshold"):
+        for key in ("value_min", "value_max", "band_threshold", "tolerance"):
             if isinstance(params.get(key), (int, float)):
                 item[key] = float(params[key])
+        if "tolerance_met" in params:  # adaptive: whether the field met the tolerance
+            item["tolerance_met"] = bool(params["tolerance_met"])
         out.append(item)
         start += s.count
     return out
@@ -610,7 +615,7 @@ def import_vdb(filepath, grids=None, lods=("medium",), weights="field", level_se
 
 def import_files(context, paths, grids=None, lods=("medium",), weights="field",
                  level_set_band=True, vector_magnitude=False, progress=None, cancel=None,
-                 max_bytes=None, compute_error=True):
+                 max_bytes=None, compute_error=True, *, tolerance=0.02):
     """Import several files; all are converted before any object is created. -> (objects, message)"""
     if not paths:
         raise ImportError_("no file selected")
@@ -618,7 +623,8 @@ def import_files(context, paths, grids=None, lods=("medium",), weights="field",
     skipped = []
     for path in paths:
         converted += convert_file(path, grids, lods, weights, level_set_band, vector_magnitude,
-                                  max_bytes, compute_error, progress, cancel, skipped)
+                                  max_bytes, compute_error, progress, cancel, skipped,
+                                  tolerance=tolerance)
     collection = None
     if context is not None and getattr(context, "view_layer", None) is not None:
         collection = context.view_layer.active_layer_collection.collection

@@ -22,7 +22,7 @@ from . import source_path
 from .transfer_settings import TransferFunctionProps
 
 LOD_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
-              "merged": "Merged"}
+              "merged": "Merged", "adaptive": "Adaptive"}
 
 
 def _tag(self, context):

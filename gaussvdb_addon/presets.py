@@ -40,8 +40,8 @@ class GAUSSVDB_OT_import_preset_add(AddPresetBase, bpy.types.Operator):
     preset_menu = "GAUSSVDB_MT_import_presets"
     preset_subdir = IMPORT_PRESET_SUBDIR
     preset_defines = ["op = bpy.context.active_operator"]
-    preset_values = ["op.lods", "op.weights", "op.level_set_band", "op.vector_magnitude",
-                     "op.measure_error"]
+    preset_values = ["op.lods", "op.tolerance", "op.weights", "op.level_set_band",
+                     "op.vector_magnitude", "op.measure_error"]
 
 
 class GAUSSVDB_MT_colormap_presets(bpy.types.Menu):

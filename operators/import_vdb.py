@@ -11,7 +11,7 @@ scripts) and Redo run the same steps synchronously, with no event loop to listen
 import os
 
 import bpy
-from bpy.props import BoolProperty, CollectionProperty, EnumProperty, StringProperty
+from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 # Mirrors kernels.lod.PRESETS / PRESET_LABELS (kept static: registration must not import numba;
@@ -22,6 +22,7 @@ LOD_ITEMS = (
     ("high", "High", "2^3 blocks in dense leaves, one Gaussian per voxel in sparse ones"),
     ("variance", "Variance", "Variance-based clustering inside each leaf (recursive bisection)"),
     ("merged", "Merged", "High plus merging similar neighbouring blocks across leaves"),
+    ("adaptive", "Adaptive", "The fewest Gaussians whose field meets the tolerance (fitted amplitudes)"),
 )
 # Files larger than this run as a modal (cancellable) job in the UI; smaller ones finish at once.
 MODAL_MIN_BYTES = 4 << 20
@@ -45,6 +46,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                                       "Mantaflow cache only density, not the domain-wide shadow)")
     lods: EnumProperty(name="LODs", items=LOD_ITEMS, options={"ENUM_FLAG"}, default={"medium"},
                        description="LOD presets stored on each object (shift-click for several)")
+    tolerance: FloatProperty(name="Tolerance", default=0.02, min=0.0, soft_max=0.2, precision=3,
+                             description="Adaptive LOD: largest field NRMSE over the active voxels")
     weights: EnumProperty(name="Weights", default="field",
                           description="How each Gaussian's size and amplitude are chosen", items=(
         ("field", "Field", "Normalized kernels times the volume they stand for (exact fields)"),
@@ -71,6 +74,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             layout.label(text=importer.default_grids_hint(self.filepath), icon="INFO")
         col = layout.column(heading="LODs")
         col.prop(self, "lods")
+        if "adaptive" in self.lods:
+            layout.prop(self, "tolerance")
         layout.prop(self, "weights")
         layout.prop(self, "level_set_band")
         layout.prop(self, "vector_magnitude")
@@ -85,7 +90,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
 
         return dict(grids=importer.split_names(self.grids), lods=sorted(self.lods),
                     weights=self.weights, level_set_band=self.level_set_band,
-                    vector_magnitude=self.vector_magnitude, compute_error=self.measure_error)
+                    vector_magnitude=self.vector_magnitude, compute_error=self.measure_error,
+                    tolerance=self.tolerance)
 
     def execute(self, context):
         from ..gaussvdb_addon import importer, kernel_cache
@@ -113,7 +119,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         self._skipped = []
         self._jobs = [importer.convert_steps(p, opts["grids"], opts["lods"], opts["weights"],
                                              opts["level_set_band"], opts["vector_magnitude"],
-                                             None, opts["compute_error"], self._skipped)
+                                             None, opts["compute_error"], self._skipped,
+                                             tolerance=opts["tolerance"])
                       for p in paths]
         self._done = []
         self._npaths = len(paths)

@@ -95,13 +95,14 @@ def test_sample_every_preset_and_status_message(scene, bpy_module):
     for s in stats:
         assert 0 < s["nrmse"] < 1 and s["bytes"] > 0 and s["seconds"] >= 0
     msg = imp.status_message(objs)
-    assert msg.startswith("density: ") and "Gaussians (Low / Medium / High / Variance / Merged)" in msg
+    labels = " / ".join(lod.PRESET_LABELS[p] for p in lod.PRESETS)
+    assert msg.startswith("density: ") and f"Gaussians ({labels})" in msg
     first = msg.split("; ")[0]  # (a first use adds the kernels' compile time after it)
     assert "field NRMSE" in first and first.rstrip().endswith("B")
     # Viewport LOD coarsest, Render LOD finest (like Subdivision's levels); both editable.
-    assert obj.gaussvdb.viewport_lod == "low" and obj.gaussvdb.render_lod == "merged"
+    assert obj.gaussvdb.viewport_lod == "low" and obj.gaussvdb.render_lod == lod.PRESETS[-1]
     obj.gaussvdb.viewport_lod = "medium"
-    assert imp.active_lod(obj) == "medium" and imp.active_lod(obj, render=True) == "merged"
+    assert imp.active_lod(obj) == "medium" and imp.active_lod(obj, render=True) == lod.PRESETS[-1]
 
 
 def test_operator_reports_status_and_selects(scene, bpy_module):

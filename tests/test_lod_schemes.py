@@ -22,7 +22,7 @@ def sheet_leaf():
 
 def test_presets_listing():
     assert PRESETS[:3] == ("low", "medium", "high")
-    assert set(PRESETS) == {"low", "medium", "high", "variance", "merged"}
+    assert set(PRESETS) == {"low", "medium", "high", "variance", "merged", "adaptive"}
 
 
 def test_dense_leaf_low():

@@ -1,8 +1,10 @@
 """`./gaussvdb convert FILE.vdb [--grid G] [--vector-magnitude] --lod PRESET [--weights paper|field]
-[--out F.npz] [--json]`
+[--tolerance T [--max-error E]] [--out F.npz] [--json]`
 
 Reads one grid (default: the first scalar grid with active voxels), builds its Gaussians,
-measures the field error and prints one JSON object (indented; one line with --json). --out
+measures the field error and prints one JSON object (indented; one line with --json). With
+`--lod adaptive` the object also says whether the tolerance was met (and a warning on stderr says
+what was met when it was not). --out
 writes the compact encoding (kernels.lod.encode_compact) as an .npz that kernels.lod.decode_compact
 reads back. A refusal is one line on stderr (tools/cli_errors.py).
 """
@@ -52,8 +54,18 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
         "level_set_band": bool(gs.params.get("level_set_band", False)),
         "nonfinite_voxels": nonfinite,
     }
+    if lod == "adaptive":
+        p = gs.params
+        res.update(tolerance=p["tolerance"], max_error=p["max_error"] or None,
+                   tolerance_met=p["tolerance_met"], achieved_nrmse=p["achieved_nrmse"],
+                   achieved_max_abs=p["achieved_max_abs"], rounds=p["rounds"])
+        if not p["tolerance_met"]:
+            bound = f"NRMSE {p['tolerance']:g}" + (f", max {p['max_error']:g}" if p["max_error"] else "")
+            print(f"gaussvdb convert: warning: tolerance ({bound}) not met on grid {g.name!r}: "
+                  f"reached NRMSE {p['achieved_nrmse']:.4g}, max {p['achieved_max_abs']:.4g} "
+                  "with a Gaussian per voxel where the error is", file=sys.stderr)
     if error:
-        e = field_error(g, gs)
+        e = gs.params.get("field_error") or field_error(g, gs)  # adaptive: measured while building
         res.update(field_rmse=e["rmse"], field_nrmse=e["nrmse"], field_max_abs=e["max_abs"],
                    field_nrmse_denominator=e["nrmse_denominator"], field_reference=e["reference"],
                    field_k_sigma=e["k_sigma"], seconds_error=e["seconds"])
@@ -82,8 +94,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--no-error", action="store_true", help="skip the field error")
     ap.add_argument("--threads", type=cli_errors.threads, help="numba threads (0: all)")
     for k, v in DEFAULTS.items():
-        ap.add_argument("--" + k.replace("_", "-"), type=type(v), default=None,
-                        help=f"threshold (default {v})")
+        ap.add_argument("--" + k.replace("_", "-"), default=None, help=f"threshold (default {v})",
+                        type=cli_errors.nonnegative if k in ("tolerance", "max_error") else type(v))
     a = ap.parse_args(argv)
     if a.threads:
         import numba

@@ -10,10 +10,10 @@ from . import clustering, levelset, schemes
 from . import weights as W
 from .gaussian_set import GaussianSet
 
-# ordered: the paper's three spatial schemes, then the two clustering schemes
-PRESETS = ("low", "medium", "high", "variance", "merged")
+# ordered: the paper's three spatial schemes, the two clustering schemes, then the error-bounded one
+PRESETS = ("low", "medium", "high", "variance", "merged", "adaptive")
 PRESET_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
-                 "merged": "Merged"}
+                 "merged": "Merged", "adaptive": "Adaptive"}
 WEIGHTS = ("field", "paper")
 DEFAULTS = dict(
     sigma_factor=W.DEFAULT_SIGMA_FACTOR,  # field weights: sigma = f x block edge
@@ -22,6 +22,8 @@ DEFAULTS = dict(
     merge_tol=clustering.DEFAULT_MERGE_TOL,  # merge pass: max value std / value range
     merge_base="high",  # the spatial scheme the merged preset starts from
     band_width=levelset.DEFAULT_BAND_WIDTH,  # level sets: |phi| <= band_width x voxel size
+    tolerance=0.02,  # adaptive: max field NRMSE over the active voxels
+    max_error=0.0,  # adaptive: max |field - voxel| (value units); 0: no bound
 )
 
 
@@ -138,9 +140,16 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
     if refine and weights == "paper":
         raise ValueError("refine is for field weights; the paper's weights stay as written")
     p = dict(DEFAULTS, **thresholds)
+    if preset == "adaptive":
+        if weights != "field" or refine:
+            raise ValueError("the adaptive preset fits field weights itself (no paper weights, "
+                             "no refine)")
+        for key in ("tolerance", "max_error"):
+            if not (np.isfinite(float(p[key])) and float(p[key]) >= 0):
+                raise ValueError(f"{key} must be finite and >= 0, not {p[key]!r}")
     is_ls = grid.grid_class == "level_set"
     base = p["merge_base"] if preset == "merged" else preset
-    code = schemes.SCHEME_CODES[base]
+    code = schemes.SCHEME_CODES.get(base, schemes.HIGH)  # adaptive: the scan's counts go unused
     paper, scale = weights == "paper", W.sigma_scale(weights, p["sigma_factor"])
     lo_ = np.asarray(grid.leaf_origins, np.int32).reshape(-1, 3)
     order = leaf_order(lo_)
@@ -163,6 +172,15 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
     t_or, tbox = _tile_boxes(grid, t_act, band_thr)
     nt = len(t_or)
     origins = np.concatenate([lo_[order[nz]], t_or]) if nt else lo_[order[nz]]
+    params = dict(p, preset=preset, base=base, level_set_band=bool(level_set_band and is_ls),
+                  band_threshold=band_thr, value_min=vmin, value_max=vmax, merged=0,
+                  nonfinite_voxels=nonfinite, refine=0)
+    if preset == "adaptive":
+        from .adaptive import build_adaptive  # imports error.py, which imports this module
+
+        return build_adaptive(grid, kept, order, lo_, t_or, tbox, tolerance=p["tolerance"],
+                              max_error=p["max_error"], scale=scale, band=params["level_set_band"],
+                              params=params)
 
     n_merged = 0
     if preset == "merged" or merge:  # the merge pass works on boxes; Gaussians after it
@@ -199,9 +217,7 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
     gstart = np.zeros(len(origins) + 1, np.int64)
     np.cumsum(gcount, out=gstart[1:])
     offsets, codes, sig, amp, vox, vals = out
-    params = dict(p, preset=preset, base=base, level_set_band=bool(level_set_band and is_ls),
-                  band_threshold=band_thr, value_min=vmin, value_max=vmax, merged=n_merged,
-                  nonfinite_voxels=nonfinite)
+    params["merged"] = n_merged
     gs = GaussianSet(
         group_origins=origins, group_start=gstart, offsets=offsets, sigmas=sig, values=vals,
         amplitudes=amp, voxels=vox, grid_class=grid.grid_class, lod=preset, weights=weights,
@@ -214,6 +230,4 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
         info = refine_amplitudes(grid, gs, refine)
         params["refine"] = refine
         params["refine_sse"] = info["sse"]
-    else:
-        params["refine"] = 0
     return gs

@@ -198,16 +198,22 @@ def _cells(grid, gset):
             np.concatenate(cw), is_ls)
 
 
-def setup(grid, gset, k=DEFAULT_K):
-    """Cells (sorted by key), the (cell, Gaussian) pair lists and the Gaussians' geometry: all that
-    the evaluation needs except the weights (so an amplitude refinement can reuse it)."""
+def cell_table(grid, gset):
+    """The evaluation cells, sorted by key: origins, masks, reference per voxel, weights (big tiles
+    count (edge/8)^3), keys, and whether the grid is a level set. Depends on the grid and on the
+    set's level-set band option only, so an adaptive build computes it once."""
     grid, _ = finite_grid(grid)  # the voxels build_lod kept: NaN/Inf ones are inactive there too
     corg, cmask, cref, cw, is_ls = _cells(grid, gset)
     keys = ((corg[:, 0] >> 3) + _OFF << 42) | ((corg[:, 1] >> 3) + _OFF << 21) | ((corg[:, 2] >> 3) + _OFF)
     srt = np.argsort(keys, kind="stable")
-    keys, corg, cmask, cref, cw = keys[srt], corg[srt], cmask[srt], cref[srt], cw[srt]
-    cent = gset.centers()
-    sig = gset.sigmas.astype(np.float64)
+    return dict(corg=corg[srt], cmask=cmask[srt], cref=cref[srt], cw=cw[srt], keys=keys[srt],
+                is_ls=is_ls)
+
+
+def pair_lists(table, cent, sig, k=DEFAULT_K):
+    """The (cell, Gaussian) pairs of Gaussians at cent with sigmas sig (float64), truncated at k
+    sigma, grouped by cell: table plus cstart, pg (Gaussian of each pair), cent, sig, k."""
+    keys, corg = table["keys"], table["corg"]
     kk = float(k)
     cnt = _count_pairs(cent, sig, kk, keys, corg)
     start = np.zeros(len(cnt) + 1, np.int64)
@@ -219,8 +225,21 @@ def setup(grid, gset, k=DEFAULT_K):
     pg = pg[o]
     cstart = np.zeros(len(corg) + 1, np.int64)
     np.cumsum(np.bincount(pc, minlength=len(corg)), out=cstart[1:])
-    return dict(corg=corg, cmask=cmask, cref=cref, cw=cw, is_ls=is_ls, cstart=cstart, pg=pg,
-                cent=cent, sig=sig, k=kk)
+    return dict(table, cstart=cstart, pg=pg, cent=cent, sig=sig, k=kk)
+
+
+def setup(grid, gset, k=DEFAULT_K):
+    """Cells (sorted by key), the (cell, Gaussian) pair lists and the Gaussians' geometry: all that
+    the evaluation needs except the weights (so an amplitude refinement can reuse it)."""
+    return pair_lists(cell_table(grid, gset), gset.centers(), gset.sigmas.astype(np.float64), k)
+
+
+def nrmse_denominator(is_ls, vmin, vmax):
+    """What the RMSE is divided by: 1 for level sets (an occupancy), else the value range, or
+    max |value| when the range is 0 (a constant grid)."""
+    if is_ls:
+        return 1.0
+    return (vmax - vmin) or max(abs(vmin), abs(vmax)) or 1.0
 
 
 def field_error(grid, gset, k=DEFAULT_K) -> dict:
@@ -232,16 +251,11 @@ def field_error(grid, gset, k=DEFAULT_K) -> dict:
     sse, mx, npts, inter, union = _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, kk)
     n = float(np.sum(npts * cw))
     rmse = float(np.sqrt(np.sum(sse * cw) / n)) if n else 0.0
-    if is_ls:
-        den = 1.0
-    else:
-        act = cmask != 0
-        vmin, vmax = gset.params.get("value_min"), gset.params.get("value_max")
-        if vmin is None:
-            from .build import value_range
-            vmin, vmax = value_range(grid)
-        den = (vmax - vmin) or max(abs(vmin), abs(vmax)) or 1.0
-        del act
+    vmin, vmax = gset.params.get("value_min"), gset.params.get("value_max")
+    if vmin is None and not is_ls:
+        from .build import value_range
+        vmin, vmax = value_range(grid)
+    den = nrmse_denominator(is_ls, vmin, vmax)
     out = dict(rmse=rmse, nrmse=rmse / den, max_abs=float(mx.max()) if len(mx) else 0.0,
                nrmse_denominator=float(den), points=int(n), k_sigma=kk,
                pairs=int(len(pg)), seconds=time.perf_counter() - t0)
