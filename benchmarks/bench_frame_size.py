@@ -54,6 +54,7 @@ def cli_seconds(path, mode, lod, size, out):
 
 def main(argv=None):
     a = parse(argv)
+    import cli_grids
     import cmd_render
     from blender_session import addon_module, start
 
@@ -64,7 +65,7 @@ def main(argv=None):
     tmp = tempfile.mkdtemp(prefix="gaussvdb-bench-")
     rows = []
     for path in a.files:
-        grid = cmd_render.pick_grid(path, None)
+        grid = cli_grids.choose_grid(path, None, False)
         bpy.ops.wm.read_homefile(use_empty=True)
         objs = importer.import_vdb(os.path.abspath(path), grids=[grid], lods=(a.lod,), weights="field",
                                    collection=bpy.context.scene.collection, compute_error=False)

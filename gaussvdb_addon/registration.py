@@ -5,7 +5,7 @@ import os
 import bpy
 
 from .. import operators
-from ..kernels import cachedir
+from ..kernels import cachedir, openvdb_binding
 from . import (
     engine,
     object_panel,
@@ -22,6 +22,14 @@ MODULES = (object_settings, source_path, render_settings, presets, operators, en
            object_panel, transfer_ui)
 
 
+def bundled_openvdb():
+    """The openvdb binding Blender bundles (the reader's route for files older than v222)."""
+    bpy.utils.expose_bundled_modules()
+    import openvdb
+
+    return openvdb
+
+
 def register():
     if not (os.environ.get("GAUSSVDB_CACHE_DIR") or os.environ.get("NUMBA_CACHE_DIR")):
         # compiled kernels go in the extension's user folder, never in its (read-only) source
@@ -31,6 +39,7 @@ def register():
                                                                   create=True))
         except (ValueError, OSError):  # not loaded as an extension: the default rule applies
             pass
+    openvdb_binding.set_loader(bundled_openvdb)
     for module in MODULES:
         for cls in module.CLASSES:
             bpy.utils.register_class(cls)

@@ -248,8 +248,12 @@ def test_frustum_is_refused_clearly(tmp_path):
 
 
 def test_fallback_route_is_exact_for_active_data(oracle):
+    from vdb_fixtures import openvdb
+
+    from kernels.openvdb_binding import set_loader
     from kernels.vdb.fallback import read_with_binding
     from kernels.vdb.griddata import VDBFile
+    set_loader(openvdb)  # as the extension does: kernels never import bpy
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fb = read_with_binding(oracle, VDBFile(oracle, 224, (12, 0)), ["sphere_half", "vel"], False, None)

@@ -32,7 +32,6 @@ from . import weights as W
 from .error import DEFAULT_K, cell_table, field_error, nrmse_denominator, pair_lists
 from .fit import fit_weights
 from .gaussian_set import GaussianSet
-from .refine import _true_voxels, factors_from_codes, quantize_factors
 
 MAX_ROUNDS = 12  # fit + split rounds (a leaf reaches single voxels in 3 splits)
 CG_STEPS = 6  # per round: conjugate-gradient steps, then
@@ -222,8 +221,8 @@ def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, ma
         weights="field", index_to_world=np.asarray(grid.index_to_world, np.float64),
         background=float(grid.background), n_leaf_groups=len(groups), size_codes=codes,
         sigma_scale=scale, params=params)
-    a0 = W.amplitudes64(gs.sigmas, _true_voxels(gs), "field")
-    gs.amplitudes = (a0 * factors_from_codes(quantize_factors(np.concatenate([f, f_tile]))))\
+    a0 = W.amplitudes64(gs.sigmas, gs.true_voxels(), "field")
+    gs.amplitudes = (a0 * W.factors_from_codes(W.quantize_factors(np.concatenate([f, f_tile]))))\
         .astype(np.float32)
     err = field_error(grid, gs, k)
     met = err["nrmse"] <= tolerance and (max_error <= 0 or err["max_abs"] <= max_error)

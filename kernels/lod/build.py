@@ -2,13 +2,14 @@
 (per leaf), clustering.py (merge pass), weights.py (sigma/amplitude), levelset.py (band filter)."""
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 from . import clustering, levelset, schemes
 from . import weights as W
+from .adaptive import build_adaptive
 from .gaussian_set import GaussianSet
+from .gridprep import active_tiles, finite_grid, range_of
+from .refine import refine_amplitudes
 
 # ordered: the paper's three spatial schemes, the two clustering schemes, then the error-bounded one
 PRESETS = ("low", "medium", "high", "variance", "merged", "adaptive")
@@ -27,34 +28,6 @@ DEFAULTS = dict(
 )
 
 
-def _range(lo, hi, tile_values):
-    """(min, max) from the per-leaf lo/hi of scan_leaves and the active tiles' values; (0, 0)
-    when there is nothing."""
-    tv = np.asarray(tile_values, np.float64)
-    lo_ = [np.inf] + ([lo.min()] if len(lo) else []) + ([tv.min()] if len(tv) else [])
-    hi_ = [-np.inf] + ([hi.max()] if len(hi) else []) + ([tv.max()] if len(tv) else [])
-    a, b = min(lo_), max(hi_)
-    return (0.0, 0.0) if a > b else (float(a), float(b))
-
-
-def _active(grid):
-    """Indices of the active tiles (cheap when there are none)."""
-    if not len(grid.tile_values):
-        return np.zeros(0, np.int64)
-    return np.flatnonzero(np.asarray(grid.tile_active, bool))
-
-
-def value_range(grid):
-    """(min, max) over the active voxels, tiles included; (0, 0) for an empty grid."""
-    n = len(grid.leaf_masks)
-    lo = hi = np.zeros(0)
-    if n:
-        lo, hi, *_ = schemes.kernels(n)["scan"](grid.leaf_masks, grid.leaf_values,
-                                                np.arange(n, dtype=np.int64), False,
-                                                np.float32(0), schemes.LOW)
-    return _range(lo, hi, np.asarray(grid.tile_values)[_active(grid)])
-
-
 def leaf_order(origins):
     """Leaves sorted by origin (x, then y, then z), so the output (and its encoding) is canonical.
     Many leaves: one int64 key each and a stable sort (files are nearly in this order, where that
@@ -67,38 +40,19 @@ def leaf_order(origins):
     return np.lexsort((o[:, 2], o[:, 1], o[:, 0])).astype(np.int64)
 
 
-def effective_masks(grid, level_set_band=True, band_width=levelset.DEFAULT_BAND_WIDTH):
-    """The voxels the Gaussians must cover: all active ones, or the level-set shell."""
-    if grid.grid_class == "level_set" and level_set_band and len(grid.leaf_masks):
-        thr = levelset.band_threshold(grid, band_width)
-        return levelset.band_masks(grid.leaf_masks, grid.leaf_values, np.float32(thr)), thr
-    return grid.leaf_masks, None
-
-
-def finite_grid(grid):
-    """(grid, n): the grid itself when every active value is finite, else a copy whose NaN/Inf
-    voxels and tiles are inactive (the caller's grid is untouched), with how many voxels that was."""
-    from ..vdb.sanitize import count_nonfinite, sanitize_nonfinite
-
-    if count_nonfinite(grid) == 0:
-        return grid, 0
-    clean = copy.copy(grid)
-    return clean, sanitize_nonfinite(clean)
-
-
 def _scan(K, grid, order, band_thr, code):
     """scan_leaves over the grid; when it meets NaN/Inf (or a tile does), over a sanitized copy.
     Returns (grid, nonfinite voxels, lo, hi, kept, counts, active tile indices)."""
     thr = np.float32(band_thr if band_thr is not None else 0.0)
     lo, hi, bad, kept, counts = K["scan"](grid.leaf_masks, grid.leaf_values, order,
                                           band_thr is not None, thr, code)
-    t_act = _active(grid)
+    t_act = active_tiles(grid)
     if not bad.any() and np.isfinite(np.asarray(grid.tile_values)[t_act]).all():
         return grid, 0, lo, hi, kept, counts, t_act
     grid, nonfinite = finite_grid(grid)  # NaN/Inf is no density: never let it reach a Gaussian
     lo, hi, _, kept, counts = K["scan"](grid.leaf_masks, grid.leaf_values, order,
                                         band_thr is not None, thr, code)
-    return grid, nonfinite, lo, hi, kept, counts, _active(grid)
+    return grid, nonfinite, lo, hi, kept, counts, active_tiles(grid)
 
 
 def _tile_boxes(grid, t_act, band_thr):
@@ -158,7 +112,7 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
     if is_ls and level_set_band and len(grid.leaf_masks):
         band_thr = levelset.band_threshold(grid, p["band_width"])
     grid, nonfinite, lo, hi, kept, counts, t_act = _scan(K, grid, order, band_thr, code)
-    vmin, vmax = _range(lo, hi, np.asarray(grid.tile_values)[t_act])
+    vmin, vmax = range_of(lo, hi, np.asarray(grid.tile_values)[t_act])
     vr = vmax - vmin
     thr_sp, thr_v = float(p["var_spatial"]), float(p["var_value"] * vr)
     values = grid.leaf_values
@@ -176,7 +130,6 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
                   band_threshold=band_thr, value_min=vmin, value_max=vmax, merged=0,
                   nonfinite_voxels=nonfinite, refine=0)
     if preset == "adaptive":
-        from .adaptive import build_adaptive  # imports error.py, which imports this module
 
         return build_adaptive(grid, kept, order, lo_, t_or, tbox, tolerance=p["tolerance"],
                               max_error=p["max_error"], scale=scale, band=params["level_set_band"],
@@ -225,7 +178,6 @@ def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, me
         background=float(grid.background), n_leaf_groups=n_leaf, size_codes=codes,
         sigma_scale=scale, params=params)
     if refine and not is_ls and gs.count:
-        from .refine import refine_amplitudes
 
         info = refine_amplitudes(grid, gs, refine)
         params["refine"] = refine

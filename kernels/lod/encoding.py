@@ -20,8 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .gaussian_set import GaussianSet
-from .refine import _true_voxels, factors_from_codes, quantize_factors
-from .weights import amplitudes64, sigmas_from_codes
+from .weights import amplitudes64, factors_from_codes, quantize_factors, sigmas_from_codes
 
 VERSION = 2  # 1: int64 "meta" + float arrays; 2: one varint "header" (both are decoded)
 VALUE_TOL = 1e-3
@@ -267,7 +266,7 @@ def encode_compact(g: GaussianSet) -> dict:
     # -- amplitudes: derived from sigma and V; a refined set stores its quantized factors
     meta.update(amp_mode=0, amp_cmin=0, w_amp=0)
     if g.count and g.weights == "field":
-        a0 = amplitudes64(g.sigmas, _true_voxels(g), "field")
+        a0 = amplitudes64(g.sigmas, g.true_voxels(), "field")
         if not np.array_equal(a0.astype(np.float32), g.amplitudes):
             c = quantize_factors(g.amplitudes.astype(np.float64) / a0)
             if np.array_equal((a0 * factors_from_codes(c)).astype(np.float32), g.amplitudes):

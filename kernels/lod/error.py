@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
-from .build import effective_masks, finite_grid
+from .gridprep import effective_masks, finite_grid, value_range
 from .levelset import band_threshold
 
 DEFAULT_K = 4.0
@@ -253,7 +253,6 @@ def field_error(grid, gset, k=DEFAULT_K) -> dict:
     rmse = float(np.sqrt(np.sum(sse * cw) / n)) if n else 0.0
     vmin, vmax = gset.params.get("value_min"), gset.params.get("value_max")
     if vmin is None and not is_ls:
-        from .build import value_range
         vmin, vmax = value_range(grid)
     den = nrmse_denominator(is_ls, vmin, vmax)
     out = dict(rmse=rmse, nrmse=rmse / den, max_abs=float(mx.max()) if len(mx) else 0.0,

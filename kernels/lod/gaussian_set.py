@@ -65,16 +65,14 @@ class GaussianSet:
         """float64 (M, 3) absolute index-space centres."""
         return self.group_origins[self.group_of()].astype(np.float64) + self.offsets
 
-    @property
-    def nbytes_compact(self) -> int:
-        from .encoding import encode_compact, encoded_nbytes
-
-        if "_nbytes_compact" not in self.params:
-            self.params["_nbytes_compact"] = encoded_nbytes(encode_compact(self))
-        return self.params["_nbytes_compact"]
-
-    @property
-    def nbytes_paper_model(self) -> int:
-        from .encoding import paper_model_bytes
-
-        return paper_model_bytes(self)
+    def true_voxels(self) -> np.ndarray:
+        """Represented voxels as float64, tiles from their true edge (int32 voxels saturate)."""
+        vox = self.voxels.astype(np.float64)
+        ml = int(self.group_start[self.n_leaf_groups])
+        if ml < self.count:
+            if self.size_codes is not None:
+                e = self.size_codes[ml:].astype(np.float64)
+            else:
+                e = np.rint(self.sigmas[ml:].astype(np.float64) / np.float64(self.sigma_scale))
+            vox[ml:] = e[:, 0] * e[:, 1] * e[:, 2]
+        return vox

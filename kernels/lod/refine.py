@@ -23,10 +23,9 @@ import numpy as np
 
 from ..jit import parallel_njit, prange
 from .error import DEFAULT_K, cell_mixture, setup
+from .weights import amplitudes64, factors_from_codes, quantize_factors
 
 FMAX = 8.0  # largest amplitude factor (an isolated voxel needs ~3.4 at sigma = 0.6 voxel)
-QSTEPS = 256  # factor quantization: 2^(c / QSTEPS), relative step 0.27 %
-CMIN = -16 * QSTEPS  # smallest non-zero factor 2^-16; below it the factor is 0
 POWER = 4.0  # psi = g^POWER
 
 
@@ -85,20 +84,6 @@ def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum,
     return sse
 
 
-def quantize_factors(f):
-    """Amplitude factors -> integer codes c (f = 2^(c / QSTEPS)); codes below CMIN mean f = 0."""
-    f = np.asarray(f, np.float64)
-    c = np.full(f.shape, CMIN - 1, np.int64)
-    pos = f >= 2.0 ** (CMIN / QSTEPS)
-    c[pos] = np.rint(np.log2(f[pos]) * QSTEPS).astype(np.int64)
-    return c
-
-
-def factors_from_codes(c):
-    c = np.asarray(c, np.int64)
-    return np.where(c < CMIN, 0.0, np.exp2(c.astype(np.float64) / QSTEPS))
-
-
 def refine_amplitudes(grid, gset, iterations=2, omega=1.0, k=DEFAULT_K, fmax=FMAX, st=None):
     """Refine gset.amplitudes in place (field weights, non-level-set grids). Returns a dict with the
     RMSE at the active voxel centres before each iteration and after the last one."""
@@ -109,9 +94,7 @@ def refine_amplitudes(grid, gset, iterations=2, omega=1.0, k=DEFAULT_K, fmax=FMA
         return dict(iterations=0, rmse=[])
     if st is None:
         st = setup(grid, gset, k)
-    from .weights import amplitudes64
-
-    a0 = amplitudes64(gset.sigmas, _true_voxels(gset), "field")
+    a0 = amplitudes64(gset.sigmas, gset.true_voxels(), "field")
     v = gset.values.astype(np.float64)
     f = np.ones(m)
     ok = v != 0
@@ -135,16 +118,3 @@ def refine_amplitudes(grid, gset, iterations=2, omega=1.0, k=DEFAULT_K, fmax=FMA
     codes = quantize_factors(f)
     gset.amplitudes = (a0 * factors_from_codes(codes)).astype(np.float32)
     return dict(iterations=iterations, sse=hist)
-
-
-def _true_voxels(gset):
-    """Represented voxels as float64, tiles from their true edge (int32 voxels saturate)."""
-    vox = gset.voxels.astype(np.float64)
-    ml = int(gset.group_start[gset.n_leaf_groups])
-    if ml < gset.count:
-        if gset.size_codes is not None:
-            e = gset.size_codes[ml:].astype(np.float64)
-        else:
-            e = np.rint(gset.sigmas[ml:].astype(np.float64) / np.float64(gset.sigma_scale))
-        vox[ml:] = e[:, 0] * e[:, 1] * e[:, 2]
-    return vox

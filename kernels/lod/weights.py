@@ -118,3 +118,22 @@ def boxes_to_gaussians(c2, ext, nvox, val, kind, first_tile, level_set, paper, s
         put_centre(out, at + k, c2[k, 0], c2[k, 1], c2[k, 2],
                    np.float32(1.0) if level_set else val[k])
         put_shape(out, at + k, at + k + 1, shape, nvox[k])
+
+
+# -- amplitude factors (refinement, adaptive fit) as the compact encoding stores them ------------
+QSTEPS = 256  # factor quantization: 2^(c / QSTEPS), relative step 0.27 %
+CMIN = -16 * QSTEPS  # smallest non-zero factor 2^-16; below it the factor is 0
+
+
+def quantize_factors(f):
+    """Amplitude factors -> integer codes c (f = 2^(c / QSTEPS)); codes below CMIN mean f = 0."""
+    f = np.asarray(f, np.float64)
+    c = np.full(f.shape, CMIN - 1, np.int64)
+    pos = f >= 2.0 ** (CMIN / QSTEPS)
+    c[pos] = np.rint(np.log2(f[pos]) * QSTEPS).astype(np.int64)
+    return c
+
+
+def factors_from_codes(c):
+    c = np.asarray(c, np.int64)
+    return np.where(c < CMIN, 0.0, np.exp2(c.astype(np.float64) / QSTEPS))

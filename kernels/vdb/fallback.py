@@ -7,6 +7,7 @@ Known limits: leaves without active voxels and inactive tiles are not reported.
 
 import numpy as np
 
+from .. import openvdb_binding
 from .errors import VDBFormatError
 from .griddata import GridData
 
@@ -16,16 +17,7 @@ _SIZES = {1: 4096, 2: 128, 3: 8}  # iterator depth of a tile -> edge in voxels
 
 
 def import_openvdb():
-    try:
-        import openvdb
-    except ImportError:
-        try:
-            import bpy
-            bpy.utils.expose_bundled_modules()
-            import openvdb
-        except Exception as e:  # no bpy, or a Blender without the module
-            raise ImportError(f"the openvdb binding is not available: {e}") from None
-    return openvdb
+    return openvdb_binding.load()
 
 
 def _matrix(xform):
