@@ -53,6 +53,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                                  description="Level sets: keep only Gaussians whose voxels straddle the surface")
     vector_magnitude: BoolProperty(name="Vector Grids as Magnitude", default=False,
                                    description="Import vec3 grids (velocity) as their magnitude")
+    use_sequence: BoolProperty(name="Sequence", default=True,
+                               description="A numbered file with numbered siblings (or several "
+                                           "numbered files selected) is one sequence: one object "
+                                           "per grid that follows the timeline")
     measure_error: BoolProperty(name="Measure Field Error", default=True,
                                 description="Compare each LOD's Gaussian field with the voxels (shown in the panel)")
 
@@ -75,6 +79,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         layout.prop(self, "level_set_band")
         layout.prop(self, "vector_magnitude")
         layout.prop(self, "measure_error")
+        from ..gaussvdb_addon import sequence_import
+
+        if sequence_import.has_siblings(self.filepath):
+            layout.prop(self, "use_sequence")
 
     def invoke(self, context, event):
         # Drag-and-drop (FileHandler) sets the path: show the options, then import.
@@ -85,7 +93,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
 
         return dict(grids=importer.split_names(self.grids), lods=sorted(self.lods),
                     weights=self.weights, level_set_band=self.level_set_band,
-                    vector_magnitude=self.vector_magnitude, compute_error=self.measure_error)
+                    vector_magnitude=self.vector_magnitude, compute_error=self.measure_error,
+                    sequence=self.use_sequence)
 
     def execute(self, context):
         from ..gaussvdb_addon import importer, kernel_cache
@@ -94,6 +103,12 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         big = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) >= MODAL_MIN_BYTES
         # the first use compiles for about a minute: run modal, so the status bar says so first
         big = big or not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
+        from ..gaussvdb_addon import sequence_import
+        from ..kernels import sequence as seq
+
+        if self.use_sequence and any(p is not None and (len(v) > 1 or sequence_import.has_siblings(p.path(v[0])))
+                                     for p, v in seq.group(paths)):
+            big = False  # a sequence imports in one go (its frames are read once, then one is converted)
         if big and context.window is not None and not bpy.app.background and not self.options.is_repeat:
             return self._start_modal(context, paths)
         try:
@@ -110,6 +125,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         from ..gaussvdb_addon import importer
 
         opts = self._options()
+        opts.pop("sequence")
         self._skipped = []
         self._jobs = [importer.convert_steps(p, opts["grids"], opts["lods"], opts["weights"],
                                              opts["level_set_band"], opts["vector_magnitude"],
