@@ -160,39 +160,19 @@ def _load(obj, path, lod, scene):
     opts = _options(st)
     folder = disk_cache_dir(scene)
     cache_file = os.path.join(folder, seq.cache_name(path, st.grid_name, lod, **opts)) if folder else ""
-    finger = seq.fingerprint(path) if folder else ""
-    if cache_file and os.path.isfile(cache_file):
-        found = seq.read_cache(cache_file, finger)
-        if found is not None:
-            STATS["disk_hits"] += 1
-            return decode(*found)
+    found = seq.read_frame(cache_file, path) if cache_file else None
+    if found is not None:
+        STATS["disk_hits"] += 1
+        gset, values = found
+        return gset, values, None if gset is None else np.asarray(gset.index_to_world), ""
     gset, values, i2w, error, original = convert_frame(path, st.grid_name, lod, **opts)
     if cache_file and not error:
         try:
-            write_frame(cache_file, original, values, finger, path, st.grid_name, lod)
+            seq.write_frame(cache_file, original, values, path, st.grid_name, lod)
             STATS["disk_writes"] += 1
-        except (OSError, ValueError):  # a read-only folder or a set the encoding refuses
+        except (OSError, ValueError):  # a read-only folder, or a set the encoding refuses
             pass
     return gset, values, i2w, error
-
-
-def decode(enc, meta):
-    """A cache file's (GaussianSet or None, values, index_to_world, '')."""
-    from ..kernels.lod import decode_compact
-
-    if meta.get("empty"):
-        return None, None, None, ""
-    gset = decode_compact(enc)
-    return gset, meta.get("values"), np.asarray(gset.index_to_world, np.float64), ""
-
-
-def write_frame(cache_file, gset, values, finger, path, grid, lod):
-    """One frame's cache file (the compact encoding; an empty frame as a marker)."""
-    from ..kernels.lod import encode_compact
-
-    meta = {"fingerprint": finger, "source": os.path.basename(path), "grid": grid, "lod": lod,
-            "values": values, "empty": gset is None}
-    seq.write_cache(cache_file, {} if gset is None else encode_compact(gset), meta)
 
 
 def convert_frame(path, grid, lod, weights="field", level_set_band=True, vector_magnitude=False):

@@ -39,9 +39,15 @@ def sequence_of(path, numbers=None):
 
 
 def has_siblings(path) -> bool:
-    """True when ``path`` is a numbered file with at least one other frame beside it."""
+    """True when ``path`` is a numbered file whose next or previous frame is beside it (so
+    'bunny_256.vdb' beside 'bunny_512.vdb' is no sequence, 'smoke_0007.vdb' beside
+    'smoke_0008.vdb' is)."""
     pat = seq.parse(path) if path else None
-    return pat is not None and len(pat.scan()) > 1
+    n = seq.frame_number(path) if pat is not None else None
+    if n is None:
+        return False
+    present = set(pat.scan())
+    return n + 1 in present or n - 1 in present
 
 
 def _frame_pass(pat, present, wanted, progress):

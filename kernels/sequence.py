@@ -264,3 +264,29 @@ def read_cache(path, source_fingerprint: str):
     if meta.get("cache_version") != CACHE_VERSION or meta.get("fingerprint") != source_fingerprint:
         return None
     return data, meta
+
+
+def write_frame(cache_file, gset, values, source_path, grid, lod):
+    """One frame's cache file: the compact encoding of its Gaussians (None: the grid has no
+    voxels in this frame, kept as a marker) and its voxel figures. The add-on and
+    `./gaussvdb convert --cache-dir` both write it; returns the bytes written."""
+    from .lod import encode_compact
+
+    meta = {"fingerprint": fingerprint(source_path), "source": os.path.basename(source_path),
+            "grid": grid, "lod": lod, "values": values, "empty": gset is None}
+    write_cache(cache_file, {} if gset is None else encode_compact(gset), meta)
+    return os.path.getsize(cache_file)
+
+
+def read_frame(cache_file, source_path):
+    """(GaussianSet or None for an empty frame, voxel figures) from a cache file made from this
+    very source file; None when there is none (or it is stale or broken)."""
+    from .lod import decode_compact
+
+    if not os.path.isfile(cache_file):
+        return None
+    found = read_cache(cache_file, fingerprint(source_path))
+    if found is None:
+        return None
+    enc, meta = found
+    return (None if meta.get("empty") else decode_compact(enc)), meta.get("values")
