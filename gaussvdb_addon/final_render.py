@@ -169,8 +169,8 @@ def _render(engine, depsgraph):
     tf = sync.transfer_function(scene.gaussvdb)
     for msg in sync.warnings:  # log scale over values <= 0, missing sequence frames
         engine.report({"WARNING"}, f"GaussVDB: {msg}")
-    for msg in sync.errors:  # an unreadable sequence frame: said, but the animation goes on
-        engine.report({"ERROR"}, f"GaussVDB: {msg}")
+    for msg in sync.errors:  # an unreadable sequence frame: said, and the animation goes on (an
+        engine.report({"WARNING"}, f"GaussVDB: error: {msg}")  # ERROR report would stop it)
     engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
     device.sync(rscene)
     t_sync = time.perf_counter() - t0

@@ -310,3 +310,24 @@ def test_disk_cache_next_to_blend_skips_conversion(bpy_module, scene, frames, re
     sf.CACHE.clear()
     _drawn(bpy, scene, 1)
     assert sf.STATS["converted"] == converted + 1
+
+
+def test_animation_goes_on_past_an_unreadable_frame(bpy_module, scene, tmp_path):
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+
+    bpy = bpy_module
+    first = write_frames(str(tmp_path / "seq"), [1, 2, 3], broken=(2,))
+    _import(bpy, first, grids="density")
+    _camera_scene(bpy, scene)
+    scene.frame_start, scene.frame_end = 1, 3
+    scene.render.filepath = str(tmp_path / "anim_")
+    bpy.ops.render.render(animation=True)  # no exception: frame 2 is a warning naming the file
+    assert sorted(p for p in os.listdir(tmp_path) if p.startswith("anim_")) == [
+        "anim_0001.png", "anim_0002.png", "anim_0003.png"]
+    assert final_render.LAST_STATS["frame"] == 3 and not final_render.LAST_STATS["errors"]
+    assert _png(bpy, str(tmp_path / "anim_0002.png")).reshape(-1, 4)[:, :3].max() == 0.0  # empty
+    scene.frame_set(2)
+    scene.render.filepath = str(tmp_path / "two.png")
+    scene.render.use_file_extension = False
+    bpy.ops.render.render(write_still=True)
+    assert "blob_0002.vdb" in final_render.LAST_STATS["errors"][0]
