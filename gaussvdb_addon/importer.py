@@ -626,13 +626,12 @@ def import_files(context, paths, grids=None, lods=("medium",), weights="field",
     selected) imports as one sequence: one object per grid following the timeline."""
     if not paths:
         raise ImportError_("no file selected")
-    from ..kernels import sequence as seq
     from . import sequence_import
 
     converted = []
     skipped = []
-    for pat, items in seq.group(paths) if sequence else [(None, list(paths))]:
-        if pat is not None and (len(items) > 1 or sequence_import.has_siblings(pat.path(items[0]))):
+    for pat, items, is_seq in sequence_import.sequences(paths) if sequence else [(None, paths, False)]:
+        if is_seq:
             converted += sequence_import.convert_sequence(
                 pat.path(items[0]), items if len(items) > 1 else None, grids, lods, weights,
                 level_set_band, vector_magnitude, max_bytes, compute_error, progress, cancel, skipped)
@@ -857,9 +856,21 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     from . import source_path
 
     path = source_path.absolute(st)
-    converted = convert_file(path, [st.grid_name], lod_names(obj) or ["medium"], st.weights or "field",
-                             st.level_set_band, st.vector_magnitude, max_bytes, compute_error,
-                             progress, cancel)
+    vol = st.source_volume
+    if vol is not None and vol.is_sequence:  # every frame's figures again, one frame converted
+        from . import sequence_import
+
+        converted = sequence_import.convert_sequence(
+            path, None, [st.grid_name], lod_names(obj) or ["medium"], st.weights or "field",
+            st.level_set_band, st.vector_magnitude, max_bytes, compute_error, progress, cancel)
+        for c in converted:  # keeps the object's own Volume and its timing
+            c.sequence["settings"] = dict(frame_start=vol.frame_start, frame_offset=vol.frame_offset,
+                                          frame_duration=vol.frame_duration,
+                                          sequence_mode=vol.sequence_mode)
+    else:
+        converted = convert_file(path, [st.grid_name], lod_names(obj) or ["medium"],
+                                 st.weights or "field", st.level_set_band, st.vector_magnitude,
+                                 max_bytes, compute_error, progress, cancel)
     cg = next((c for c in converted if c.name == st.grid_name), None)
     if cg is None:
         raise ImportError_(f"{os.path.basename(path)} no longer holds grid {st.grid_name!r}")

@@ -50,6 +50,19 @@ def has_siblings(path) -> bool:
     return n + 1 in present or n - 1 in present
 
 
+def sequences(paths) -> list:
+    """The selected files grouped: [(Pattern or None, numbers or [path], is a sequence?)]."""
+    out = []
+    for pat, items in seq.group(paths):
+        is_seq = pat is not None and (len(items) > 1 or has_siblings(pat.path(items[0])))
+        out.append((pat, items, is_seq))
+    return out
+
+
+def any_sequence(paths) -> bool:
+    return any(is_seq for _, _, is_seq in sequences(paths))
+
+
 def _frame_pass(pat, present, wanted, progress):
     """Read every frame once: per grid and frame the value figures and leaf box; frames that
     cannot be read -> {number: reason}. Returns (figures {grid: {number: stats}}, boxes {grid:
@@ -174,7 +187,7 @@ def unreadable_note(objs) -> str:
     seen = {}
     for obj in objs:
         fig = obj.gaussvdb.stats().get("sequence", {})
-        pat = seq.parse(os.path.join("", fig.get("pattern", "")))
+        pat = seq.parse(fig.get("pattern", ""))
         for n, why in fig.get("unreadable", {}).items():
             if pat is not None:
                 seen[pat.name(int(n))] = why

@@ -104,11 +104,9 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         # the first use compiles for about a minute: run modal, so the status bar says so first
         big = big or not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
         from ..gaussvdb_addon import sequence_import
-        from ..kernels import sequence as seq
 
-        if self.use_sequence and any(p is not None and (len(v) > 1 or sequence_import.has_siblings(p.path(v[0])))
-                                     for p, v in seq.group(paths)):
-            big = False  # a sequence imports in one go (its frames are read once, then one is converted)
+        if self.use_sequence and sequence_import.any_sequence(paths):
+            big = False  # in one go: every frame is read once, then one frame is converted
         if big and context.window is not None and not bpy.app.background and not self.options.is_repeat:
             return self._start_modal(context, paths)
         try:

@@ -331,3 +331,28 @@ def test_animation_goes_on_past_an_unreadable_frame(bpy_module, scene, tmp_path)
     scene.render.use_file_extension = False
     bpy.ops.render.render(write_still=True)
     assert "blob_0002.vdb" in final_render.LAST_STATS["errors"][0]
+
+
+def test_reload_keeps_the_sequence_and_its_timing(bpy_module, scene, frames):
+    importer, _, _ = _mods()
+    bpy = bpy_module
+    objs, _ = _import(bpy, frames, grids="density")
+    obj = objs[0]
+    vol = obj.gaussvdb.source_volume
+    vol.frame_start, vol.sequence_mode = 5, "PING_PONG"
+    n_volumes = len(bpy.data.volumes)
+    write_grid(frames.replace("0001", "0004"), blob(4) * 3, voxel_size=0.1)  # re-baked
+    importer.reload_object(obj, compute_error=False)
+    assert obj.gaussvdb.source_volume == vol and len(bpy.data.volumes) == n_volumes
+    assert (vol.frame_start, vol.sequence_mode) == (5, "PING_PONG")
+    figures = obj.gaussvdb.stats()["sequence"]
+    assert figures["values"]["4"]["max"] == pytest.approx(3 * blob(4).max(), rel=1e-6)
+    assert obj.gaussvdb.voxel_stats()["max"] == figures["values"]["4"]["max"]
+
+
+def test_numbered_files_without_neighbours_are_no_sequence(bpy_module, scene, tmp_path):
+    for n in (256, 512):  # 'bunny_ls_256.vdb' beside 'bunny_ls_512.vdb': two resolutions
+        write_grid(tmp_path / f"bunny_{n}.vdb", blob(1), voxel_size=0.1)
+    objs, _ = _import(bpy_module, str(tmp_path / "bunny_256.vdb"))
+    assert [o.name for o in objs] == ["bunny_256_density"]
+    assert not objs[0].gaussvdb.source_volume.is_sequence
