@@ -140,9 +140,11 @@ class ViewportSession:
     # -- called from Blender's main thread ---------------------------------------------------
     def update(self, context, depsgraph):
         first = self.sync.scene is None
+        changed = self.sync.note_updates(depsgraph.updates) or first
         frame = depsgraph.scene.frame_current  # sequence objects follow the timeline
-        changed = self.sync.note_updates(depsgraph.updates) or first or frame != self.frame
-        self.frame = frame
+        if frame != self.frame:
+            self.frame = frame
+            self.sync.dirty = changed = True
         if not changed:
             return False
         self.sync.sync(depsgraph)

@@ -356,3 +356,24 @@ def test_numbered_files_without_neighbours_are_no_sequence(bpy_module, scene, tm
     objs, _ = _import(bpy_module, str(tmp_path / "bunny_256.vdb"))
     assert [o.name for o in objs] == ["bunny_256_density"]
     assert not objs[0].gaussvdb.source_volume.is_sequence
+
+
+def test_viewport_session_follows_the_timeline(bpy_module, scene, frames, references):
+    import importlib
+
+    bpy = bpy_module
+    vp = importlib.import_module(f"{PKG}.gaussvdb_addon.viewport")
+    _import(bpy, frames, grids="density")
+
+    class Eng:
+        def tag_redraw(self):
+            pass
+
+    sess = vp.ViewportSession(Eng())
+    for f in (1, 3, 2):
+        scene.frame_set(f)
+        dg = bpy.context.evaluated_depsgraph_get()
+        assert sess.update(None, dg) is True
+        (obj,) = sess.sync.scene.objects
+        _same(obj.gaussians, references[(f, "density")])
+    assert sess.update(None, bpy.context.evaluated_depsgraph_get()) is False  # same frame: nothing
