@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 from conftest import ROOT
-from test_sequence_import import _drawn, _import, _mods, _same, write_frames
+from test_sequence_import import _drawn, _import, _mods, write_frames
 
 CLI = os.path.join(ROOT, "tools", "cli.py")
 
@@ -75,4 +75,3 @@ def test_convert_sequence_into_the_disk_cache_the_addon_reads(bpy_module, scene,
     fresh = _drawn(bpy, scene, 3)[0]["blob_heat"]
     assert np.array_equal(fresh.offsets, drawn[3]["blob_heat"].offsets)
     assert np.array_equal(fresh.voxels, drawn[3]["blob_heat"].voxels)
-    _ = _same  # (bit-identical conversions are checked in test_sequence_import)
