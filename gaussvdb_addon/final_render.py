@@ -167,8 +167,10 @@ def _render(engine, depsgraph):
     sync = scene_sync.SceneSync(viewport=False)
     rscene = sync.sync(depsgraph)
     tf = sync.transfer_function(scene.gaussvdb)
-    for msg in sync.warnings:  # transfer-function warnings (log scale over values <= 0)
+    for msg in sync.warnings:  # log scale over values <= 0, missing sequence frames
         engine.report({"WARNING"}, f"GaussVDB: {msg}")
+    for msg in sync.errors:  # an unreadable sequence frame: said, and the animation goes on (an
+        engine.report({"WARNING"}, f"GaussVDB: error: {msg}")  # ERROR report would stop it)
     engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
     device.sync(rscene)
     t_sync = time.perf_counter() - t0
@@ -191,7 +193,8 @@ def _render(engine, depsgraph):
                  seconds_render=t_render, width=width, height=height, region=list(region),
                  mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
                  threads=device.stats.get("threads"), cancelled=cancelled,
-                 value_range=[tf.vmin, tf.vmax], warnings=list(sync.warnings), legend=legend_drawn)
+                 value_range=[tf.vmin, tf.vmax], warnings=list(sync.warnings),
+                 errors=list(sync.errors), frame=scene.frame_current, legend=legend_drawn)
     LAST_STATS.clear()
     LAST_STATS.update(stats)
     engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "

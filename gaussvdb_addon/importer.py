@@ -207,6 +207,7 @@ class ConvertedGrid:
     nonfinite_voxels: int = 0  # NaN/Inf voxels made inactive before conversion
     values: dict = field(default_factory=dict)  # kernels.render.voxel_stats: the auto range of any LOD
     seconds_compile: float = 0.0  # kernels compiled (or loaded from the cache) before converting
+    sequence: dict = None  # a sequence's settings and per-frame figures (sequence_import.py)
 
     @property
     def is_level_set(self) -> bool:
@@ -536,7 +537,12 @@ def _convert_to_pointclouds(objs):
 def _settings_to_object(obj, cg, stats, options):
     st = obj.gaussvdb
     st.is_gaussvdb = True
-    st.source_file = cg.filepath
+    if cg.sequence:  # the first file, with Blender's Volume sequence settings
+        from . import source_path
+
+        st.source_volume = source_path.sequence_volume(cg.filepath, **cg.sequence["settings"])
+    else:
+        st.source_file = cg.filepath
     st.grid_name = cg.name
     st.grid_class = cg.grid_class
     st.value_type = cg.value_type
@@ -548,8 +554,11 @@ def _settings_to_object(obj, cg, stats, options):
     st.leaf_box_min = [float(v) for v in cg.leaf_box[0]]
     st.leaf_box_max = [float(v) for v in cg.leaf_box[1]]
     st.layout_version = LAYOUT_VERSION
-    st.stats_json = json.dumps({"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels,
-                                "values": cg.values, "seconds_compile": cg.seconds_compile})
+    figures = {"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels, "values": cg.values,
+               "seconds_compile": cg.seconds_compile}
+    if cg.sequence:
+        figures["sequence"] = cg.sequence["figures"]
+    st.stats_json = json.dumps(figures)
     names = [cl.name for cl in cg.lods]
     # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
     st.viewport_lod = names[0]
@@ -615,21 +624,34 @@ def import_vdb(filepath, grids=None, lods=("medium",), weights="field", level_se
 
 def import_files(context, paths, grids=None, lods=("medium",), weights="field",
                  level_set_band=True, vector_magnitude=False, progress=None, cancel=None,
-                 max_bytes=None, compute_error=True, *, tolerance=0.02):
-    """Import several files; all are converted before any object is created. -> (objects, message)"""
+                 max_bytes=None, compute_error=True, sequence=True, *, tolerance=0.02):
+    """Import several files; all are converted before any object is created. -> (objects, message)
+
+    With ``sequence`` a numbered file with numbered siblings (or several numbered files
+    selected) imports as one sequence: one object per grid following the timeline."""
     if not paths:
         raise ImportError_("no file selected")
+    from . import sequence_import
+
     converted = []
     skipped = []
-    for path in paths:
-        converted += convert_file(path, grids, lods, weights, level_set_band, vector_magnitude,
-                                  max_bytes, compute_error, progress, cancel, skipped,
-                                  tolerance=tolerance)
+    for pat, items, is_seq in sequence_import.sequences(paths) if sequence else [(None, paths, False)]:
+        if is_seq:
+            converted += sequence_import.convert_sequence(
+                pat.path(items[0]), items if len(items) > 1 else None, grids, lods, weights,
+                level_set_band, vector_magnitude, max_bytes, compute_error, progress, cancel, skipped,
+                tolerance=tolerance)
+            continue
+        for path in items if pat is None else [pat.path(n) for n in items]:
+            converted += convert_file(path, grids, lods, weights, level_set_band, vector_magnitude,
+                                      max_bytes, compute_error, progress, cancel, skipped,
+                                      tolerance=tolerance)
     collection = None
     if context is not None and getattr(context, "view_layer", None) is not None:
         collection = context.view_layer.active_layer_collection.collection
     objs = build_objects(converted, collection, dict(weights=weights, level_set_band=level_set_band,
                                                      vector_magnitude=vector_magnitude))
+    sequence_import.name_objects(objs)
     if context is not None and getattr(context, "view_layer", None) is not None and objs:
         for obj in context.view_layer.objects.selected:
             obj.select_set(False)
@@ -638,7 +660,8 @@ def import_files(context, paths, grids=None, lods=("medium",), weights="field",
                 obj.select_set(True)
         if context.view_layer.objects.get(objs[-1].name) is not None:
             context.view_layer.objects.active = objs[-1]
-    return objs, status_message(objs, skipped)
+    note = sequence_import.unreadable_note(objs)
+    return objs, status_message(objs, skipped) + (f"; {note}" if note else "")
 
 
 def _fmt_bytes(n):
@@ -744,14 +767,23 @@ def gaussian_set_from_object(obj, lod=None, depsgraph=None):
     ``active_lod(obj, render)``). With ``depsgraph`` the evaluated object is read, so Geometry Nodes
     edits show up (moved points move their Gaussians: the centre is ``position``).
     """
-    from ..kernels.lod import GaussianSet
-
     st = obj.gaussvdb
     if lod is None:
         lod = active_lod(obj, render=True)
     idx = lod_index(obj, lod)
-    names = lod_names(obj)
-    a = read_attributes(obj, depsgraph)
+    return gaussian_set_from_arrays(read_attributes(obj, depsgraph), idx, lod_names(obj),
+                                    object_stats(obj), st.grid_class, st.weights,
+                                    stored_index_to_world(obj), fallback_name=str(lod))
+
+
+def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to_world,
+                             fallback_name=""):
+    """A GaussianSet from point attributes (name -> array, as ``read_attributes`` returns or
+    ``point_arrays`` makes): the Gaussians with ``gs_lod == idx``. ``stats``: the per-LOD
+    figures of ``_lod_stats``. One reader for objects and for the frames of a sequence, so a
+    frame converted on demand is bit-identical to the same file imported alone."""
+    from ..kernels.lod import GaussianSet
+
     n = len(a["position"])
     sel = a["gs_lod"] == idx if "gs_lod" in a else np.ones(n, bool)
     centre = a["position"][sel].astype(np.float64)
@@ -768,7 +800,7 @@ def gaussian_set_from_object(obj, lod=None, depsgraph=None):
     else:
         starts = np.zeros(0, np.int64)
     group_start = np.append(starts, m).astype(np.int64)
-    group_origins = np.ascontiguousarray(origins[starts])
+    group_origins = np.ascontiguousarray(origins[starts]).reshape(-1, 3)
     if "gs_sigma" in a:
         s = a["gs_sigma"][sel]
         sigmas = np.repeat(s[:, None], 3, axis=1) if s.ndim == 1 else s.copy()
@@ -778,18 +810,29 @@ def gaussian_set_from_object(obj, lod=None, depsgraph=None):
     values = a["gs_value"][sel].copy() if "gs_value" in a else np.ones(m, np.float32)
     amps = a["gs_amplitude"][sel].copy() if "gs_amplitude" in a else np.ones(m, np.float32)
     voxels = a["gs_voxels"][sel].copy() if "gs_voxels" in a else np.ones(m, np.int32)
-    stats = next((s for s in object_stats(obj) if s.get("lod") == (names[idx] if idx < len(names) else None)), {})
+    name = names[idx] if idx < len(names) else fallback_name
+    stats = next((s for s in stats if s.get("lod") == (names[idx] if idx < len(names) else None)), {})
     scale = float(stats.get("sigma_scale") or 0.0)
     codes = np.rint(sigmas / scale).astype(np.int32) if scale > 0 else None
     params = {k: stats[k] for k in ("value_min", "value_max", "band_threshold") if k in stats}
     return GaussianSet(
         group_origins=group_origins, group_start=group_start, offsets=offsets,
-        sigmas=np.ascontiguousarray(sigmas, np.float32), values=values.astype(np.float32),
-        amplitudes=amps.astype(np.float32), voxels=voxels.astype(np.int32),
-        grid_class=st.grid_class or "fog_volume", lod=names[idx] if idx < len(names) else str(lod),
-        weights=st.weights or "field", index_to_world=stored_index_to_world(obj),
+        sigmas=np.ascontiguousarray(sigmas, np.float32).reshape(-1, 3),
+        values=values.astype(np.float32), amplitudes=amps.astype(np.float32),
+        voxels=voxels.astype(np.int32), grid_class=grid_class or "fog_volume", lod=name,
+        weights=weights or "field", index_to_world=index_to_world,
         background=0.0, n_leaf_groups=int(stats.get("n_leaf_groups", len(group_origins))),
         size_codes=codes, sigma_scale=scale or 0.6, params=params)
+
+
+def converted_gaussian_set(cg):
+    """The GaussianSet of the first LOD of a ConvertedGrid, through the arrays an object would
+    hold (float32 centres and all): what ``gaussian_set_from_object`` reads after an import."""
+    arrays = point_arrays(cg)
+    a = {k: arr for k, (_, arr, _) in arrays.items()}
+    names = [cl.name for cl in cg.lods]
+    return gaussian_set_from_arrays(a, 0, names, _lod_stats(cg, bytes_per_point(arrays)),
+                                    cg.grid_class, cg.lods[0].gset.weights, cg.index_to_world)
 
 
 def stored_index_to_world(obj) -> np.ndarray:
@@ -820,9 +863,21 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     from . import source_path
 
     path = source_path.absolute(st)
-    converted = convert_file(path, [st.grid_name], lod_names(obj) or ["medium"], st.weights or "field",
-                             st.level_set_band, st.vector_magnitude, max_bytes, compute_error,
-                             progress, cancel)
+    vol = st.source_volume
+    if vol is not None and vol.is_sequence:  # every frame's figures again, one frame converted
+        from . import sequence_import
+
+        converted = sequence_import.convert_sequence(
+            path, None, [st.grid_name], lod_names(obj) or ["medium"], st.weights or "field",
+            st.level_set_band, st.vector_magnitude, max_bytes, compute_error, progress, cancel)
+        for c in converted:  # keeps the object's own Volume and its timing
+            c.sequence["settings"] = dict(frame_start=vol.frame_start, frame_offset=vol.frame_offset,
+                                          frame_duration=vol.frame_duration,
+                                          sequence_mode=vol.sequence_mode)
+    else:
+        converted = convert_file(path, [st.grid_name], lod_names(obj) or ["medium"],
+                                 st.weights or "field", st.level_set_band, st.vector_magnitude,
+                                 max_bytes, compute_error, progress, cancel)
     cg = next((c for c in converted if c.name == st.grid_name), None)
     if cg is None:
         raise ImportError_(f"{os.path.basename(path)} no longer holds grid {st.grid_name!r}")

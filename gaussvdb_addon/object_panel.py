@@ -27,7 +27,11 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         col = layout.column()
-        col.prop(settings, "source_file")
+        vol = settings.source_volume
+        if vol is not None and vol.is_sequence:
+            self._draw_sequence(context, layout, settings, vol)
+        else:
+            col.prop(settings, "source_file")
         row = col.row()
         row.enabled = False
         row.prop(settings, "grid_name")
@@ -54,6 +58,33 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
             nrmse = s.get("nrmse")
             grid.label(text="-" if nrmse is None else f"{100 * nrmse:.2f}%")
             grid.label(text=f"{s.get('seconds', 0.0):.2f} s")
+
+
+    @staticmethod
+    def _draw_sequence(context, layout, settings, vol):
+        """Blender's Volume sequence settings (on the source Volume, shared by the grids of one
+        sequence) and the file the current frame shows."""
+        from . import sequence_frames
+
+        col = layout.column()
+        col.prop(vol, "filepath", text="First Frame")
+        sub = col.column(align=True)
+        sub.prop(vol, "frame_duration", text="Frames")
+        sub.prop(vol, "frame_start", text="Start")
+        sub.prop(vol, "frame_offset", text="Offset")
+        col.prop(vol, "sequence_mode", text="Mode")
+        col.prop(settings, "sequence_range")
+        try:
+            pat, asked, shown = sequence_frames.file_number(context.object, context.scene.frame_current)
+        except (ValueError, OSError):
+            return
+        if pat is None:
+            text = "No frame number in the file name"
+        elif shown is None:
+            text = "No frame at this time" if asked is None else f"Frame {asked}: missing"
+        else:
+            text = pat.name(shown) + ("" if shown == asked else f" (holding: {asked} is missing)")
+        col.label(text=text, icon="FILE_VOLUME")
 
 
 CLASSES = (GAUSSVDB_PT_object,)

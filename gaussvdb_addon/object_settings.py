@@ -78,6 +78,11 @@ class GaussVDBObjectSettings(TransferFunctionProps, bpy.types.PropertyGroup):
     leaf_box_max: FloatVectorProperty(name="Leaf Box Max", size=3)
     layout_version: IntProperty(name="Layout Version", default=0)
     stats_json: StringProperty(name="Statistics", description="Per-LOD figures as JSON")
+    sequence_range: EnumProperty(
+        name="Range Over", default="SEQUENCE", update=_tag,
+        description="A sequence's automatic transfer-function range",
+        items=(("SEQUENCE", "All Frames", "The range over every frame: colours stay put while playing"),
+               ("FRAME", "Each Frame", "Each frame's own range")))
     use_scene_tf: BoolProperty(name="Use Scene Transfer Function", default=True, update=_tag,
                                description="Colour this object with the scene's transfer function; "
                                            "off: with its own colormap, range, log scale and density")

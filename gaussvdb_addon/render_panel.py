@@ -88,6 +88,27 @@ class GAUSSVDB_PT_performance(_Base, bpy.types.Panel):
         sub.prop(rd, "threads")
 
 
+class GAUSSVDB_PT_sequences(_Base, bpy.types.Panel):
+    bl_label = "Sequences"
+    bl_parent_id = "GAUSSVDB_PT_render"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        from . import sequence_frames
+
+        s = context.scene.gaussvdb
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(s, "sequence_memory", text="Memory (MB)")
+        cache = sequence_frames.CACHE
+        layout.label(text=f"{len(cache)} frames held, {cache.nbytes / 1e6:.0f} MB")
+        layout.prop(s, "use_sequence_disk_cache")
+        sub = layout.column()
+        sub.active = s.use_sequence_disk_cache
+        sub.prop(s, "sequence_cache_dir")
+
+
 class GAUSSVDB_PT_film(_Base, bpy.types.Panel):
     bl_label = "Film"
     bl_parent_id = "GAUSSVDB_PT_render"
@@ -160,5 +181,6 @@ class GAUSSVDB_PT_world(bpy.types.Panel):
 
 
 CLASSES = (GAUSSVDB_PT_colormap_presets, GAUSSVDB_PT_render,
-           GAUSSVDB_PT_transfer, GAUSSVDB_PT_level_sets, GAUSSVDB_PT_performance, GAUSSVDB_PT_film,
+           GAUSSVDB_PT_transfer, GAUSSVDB_PT_level_sets, GAUSSVDB_PT_performance,
+           GAUSSVDB_PT_sequences, GAUSSVDB_PT_film,
            GAUSSVDB_PT_passes_data, GAUSSVDB_PT_world)

@@ -78,6 +78,20 @@ class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
     legend_units: StringProperty(name="Units", default="", update=_tag,
                                  description="Shown after the grid name (e.g. kg/m3)")
 
+    # -- sequences (gaussvdb_addon/sequence_frames.py) --------------------------------------
+    sequence_memory: FloatProperty(name="Memory Budget", default=2048.0, min=0.0, soft_max=65536.0,
+                                   precision=0,
+                                   description="Megabytes of converted sequence frames kept in "
+                                               "memory, least recently used out (0: only the "
+                                               "frames on screen)")
+    use_sequence_disk_cache: BoolProperty(name="Disk Cache", default=False,
+                                          description="Keep converted sequence frames on disk (the "
+                                                      "compact encoding), so playback and renders "
+                                                      "elsewhere do not convert again")
+    sequence_cache_dir: StringProperty(name="Cache Folder", default="", subtype="DIR_PATH",
+                                       description="Folder of the disk cache (empty: "
+                                                   "gaussvdb_cache next to the .blend)")
+
 
 class GaussVDBViewLayerSettings(bpy.types.PropertyGroup):
     use_pass_value: BoolProperty(name="Value", default=False, update=_value_pass_changed,

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..kernels.render import RenderObject, RenderScene, TransferFunction, value_range, voxel_stats
 from ..kernels.render.legend import LegendEntry
-from . import blender_settings
+from . import blender_settings, sequence_frames
 
 _GRID_CACHE = {}  # (abspath, grid, mtime, size) -> GridData
 _GRID_LOCK = threading.Lock()
@@ -120,12 +120,14 @@ def read_gaussians(obj, lod, depsgraph=None):
     return gaussian_set_from_points(obj, lod)
 
 
-def source_grid(obj):
-    """The source GridData of an imported object (reference mode), read once and cached."""
+def source_grid(obj, path=None):
+    """The source GridData of an imported object (reference mode), read once and cached;
+    ``path``: the file of a sequence's current frame."""
     import bpy
 
     s = obj.gaussvdb
-    path = bpy.path.abspath(s.source_file) if s.source_file else ""
+    if path is None:
+        path = bpy.path.abspath(s.source_file) if s.source_file else ""
     if not path or not os.path.isfile(path):
         raise ValueError(f"reference mode: source file of {obj.name!r} not found ({s.source_file!r})")
     st = os.stat(path)
@@ -241,8 +243,21 @@ def level_set_color(settings):
     return LEVEL_SET_AXES.get(settings.level_set_color, "z")
 
 
+def _frame_matrix(obj, matrix_world, frame_i2w):
+    """A sequence frame whose grid transform differs from the object's frame (an adaptive
+    domain moves): placed by the object's matrix times the change of transform."""
+    if frame_i2w is None:
+        return matrix_world
+    from .importer import stored_index_to_world
+
+    own = stored_index_to_world(obj)
+    if np.array_equal(own, frame_i2w):
+        return matrix_world
+    return matrix_world @ np.linalg.inv(own) @ np.asarray(frame_i2w, np.float64)
+
+
 class _Entry:
-    __slots__ = ("key", "gaussians", "grid", "values", "count")
+    __slots__ = ("key", "gaussians", "grid", "values", "count", "frame")
 
 
 class SceneSync:
@@ -259,7 +274,8 @@ class SceneSync:
         self.builds = 0  # RenderScenes built
         self.gaussians = 0
         self.value_range = (0.0, 1.0)
-        self.warnings = []  # what the render reports (log scale over values <= 0)
+        self.warnings = []  # what the render reports (log scale over values <= 0, missing frames)
+        self.errors = []  # sequence frames that could not be read (the rest still renders)
         self.tf_users = []  # (grid name, object TF or None for the scene's) of non-level-set objects
         self.size = 0.0  # largest world box diagonal of the objects on the scene's transfer function
 
@@ -292,21 +308,33 @@ class SceneSync:
     def _entry(self, obj_eval, lod, need_grid, depsgraph):
         orig = obj_eval.original
         name = orig.name
-        data = obj_eval.data
-        key = (name, data.as_pointer() if data is not None else 0, lod,
-               self.counters.get(name, 0))
+        frame = None
+        if sequence_frames.volume(orig) is not None:  # the Gaussians of the frame shown now
+            frame = sequence_frames.frame_at(orig, lod, depsgraph.scene)
+            key = (name, "frame", frame.key, lod, orig.gaussvdb.sequence_range)
+        else:
+            data = obj_eval.data
+            key = (name, data.as_pointer() if data is not None else 0, lod,
+                   self.counters.get(name, 0))
         e = self.entries.get(name)
         if e is None or e.key != key:
             e = _Entry()
             e.key = key
-            e.gaussians = read_gaussians(obj_eval, lod, depsgraph)
             e.grid = None
-            e.values = values_of(orig.gaussvdb, e.gaussians)
-            e.count = int(len(e.gaussians.values))
+            if frame is not None:
+                e.gaussians = frame.gaussians
+                own = orig.gaussvdb.sequence_range == "FRAME"
+                e.values = (sequence_frames.values_tuple(frame.values) if own else None) \
+                    or values_of(orig.gaussvdb, e.gaussians)
+            else:
+                e.gaussians = read_gaussians(obj_eval, lod, depsgraph)
+                e.values = values_of(orig.gaussvdb, e.gaussians)
+            e.count = int(len(e.gaussians.values)) if e.gaussians is not None else 0
             self.entries[name] = e
             self.reads += 1
-        if need_grid and e.grid is None:
-            e.grid = source_grid(orig)
+        e.frame = frame
+        if need_grid and e.grid is None and e.gaussians is not None:
+            e.grid = source_grid(orig, frame.path if frame is not None else None)
             if e.values is None and e.grid.grid_class != "level_set" and e.grid.active_voxels:
                 st = voxel_stats(e.grid)
                 e.values = (st["min"], st["max"], st["positive_min"],
@@ -321,7 +349,7 @@ class SceneSync:
         settings = scene.gaussvdb
         mode = settings.mode.lower()
         objects, seen, scene_items = [], set(), []
-        self.warnings, self.tf_users = [], []
+        self.warnings, self.errors, self.tf_users = [], [], []
         total = 0
         size = 0.0
         ls_color = level_set_color(settings)
@@ -337,6 +365,13 @@ class SceneSync:
             e = self._entry(ob, lod, mode == "reference", depsgraph)
             seen.add(orig.name)
             mw = np.array(inst.matrix_world, np.float64)
+            if e.frame is not None:
+                self.warnings += [w for w in e.frame.warnings if w not in self.warnings]
+                if e.frame.error:
+                    self.errors.append(e.frame.error)
+                if e.gaussians is None:  # nothing this frame (outside Clip, empty, unreadable)
+                    continue
+                mw = _frame_matrix(orig, mw, e.frame.index_to_world)
             diag = blender_settings.world_box_diagonal(ob, inst.matrix_world)
             own = None if gs.use_scene_tf else self._object_tf(gs, e, diag)
             if own is None:

@@ -23,12 +23,39 @@ def _same_file(a, b):
 def source_volume(path):
     """The add-on's Volume datablock for ``path`` (made on first use)."""
     for vol in bpy.data.volumes:
-        if vol.get(MARK) and vol.library is None and _same_file(vol.filepath, path):
+        if vol.get(MARK) and vol.library is None and not vol.is_sequence \
+                and _same_file(vol.filepath, path):
             return vol
     vol = bpy.data.volumes.new(os.path.basename(path) or "GaussVDB source")
     vol[MARK] = True
     vol.filepath = path
     return vol
+
+
+def sequence_volume(first_path, frame_start=1, frame_offset=0, frame_duration=1,
+                    sequence_mode="REPEAT"):
+    """The Volume datablock of a numbered sequence: ``first_path`` is its first file, and
+    Blender's own sequence fields (is_sequence, frame start/offset/duration, sequence mode) say
+    which file each scene frame shows, as for a Volume object. The grids of one sequence share
+    it (one with the same file and settings is reused), so their timing stays together."""
+    fields = (int(frame_start), int(frame_offset), max(1, int(frame_duration)), sequence_mode)
+    for vol in bpy.data.volumes:
+        if vol.get(MARK) and vol.library is None and vol.is_sequence \
+                and _same_file(vol.filepath, first_path) \
+                and (vol.frame_start, vol.frame_offset, vol.frame_duration, vol.sequence_mode) == fields:
+            return vol
+    vol = bpy.data.volumes.new(os.path.basename(first_path) or "GaussVDB sequence")
+    vol[MARK] = True
+    vol.filepath = first_path
+    vol.is_sequence = True
+    vol.frame_start, vol.frame_offset = int(frame_start), int(frame_offset)
+    vol.frame_duration, vol.sequence_mode = max(1, int(frame_duration)), sequence_mode
+    return vol
+
+
+def is_sequence(settings) -> bool:
+    vol = settings.source_volume
+    return vol is not None and bool(vol.is_sequence)
 
 
 def get_source_file(settings):

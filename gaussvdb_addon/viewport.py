@@ -135,11 +135,16 @@ class ViewportSession:
         self.texture_key = None
         self.tf = None  # the scene transfer function of the current job (the legend shows it)
         self.legend_cache = {}
+        self.frame = None
 
     # -- called from Blender's main thread ---------------------------------------------------
     def update(self, context, depsgraph):
         first = self.sync.scene is None
         changed = self.sync.note_updates(depsgraph.updates) or first
+        frame = depsgraph.scene.frame_current  # sequence objects follow the timeline
+        if frame != self.frame:
+            self.frame = frame
+            self.sync.dirty = changed = True
         if not changed:
             return False
         self.sync.sync(depsgraph)
@@ -174,8 +179,8 @@ class ViewportSession:
 
                 kernel_cache.announce("render", status=lambda msg: self.engine.update_stats("", msg))
             self.submit(self.sync.scene, cam, tf)
-        if self.error:
-            self.engine.update_stats("", f"GaussVDB error: {self.error}")
+        if self.error or self.sync.errors:
+            self.engine.update_stats("", f"GaussVDB error: {self.error or self.sync.errors[0]}")
         with self.lock:
             image = self.image
         if image is None or self.sync.scene is None:

@@ -56,6 +56,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                                  description="Level sets: keep only Gaussians whose voxels straddle the surface")
     vector_magnitude: BoolProperty(name="Vector Grids as Magnitude", default=False,
                                    description="Import vec3 grids (velocity) as their magnitude")
+    use_sequence: BoolProperty(name="Sequence", default=True,
+                               description="A numbered file with numbered siblings (or several "
+                                           "numbered files selected) is one sequence: one object "
+                                           "per grid that follows the timeline")
     measure_error: BoolProperty(name="Measure Field Error", default=True,
                                 description="Compare each LOD's Gaussian field with the voxels (shown in the panel)")
 
@@ -80,6 +84,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         layout.prop(self, "level_set_band")
         layout.prop(self, "vector_magnitude")
         layout.prop(self, "measure_error")
+        from ..gaussvdb_addon import sequence_import
+
+        if sequence_import.has_siblings(self.filepath):
+            layout.prop(self, "use_sequence")
 
     def invoke(self, context, event):
         # Drag-and-drop (FileHandler) sets the path: show the options, then import.
@@ -91,7 +99,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         return dict(grids=importer.split_names(self.grids), lods=sorted(self.lods),
                     weights=self.weights, level_set_band=self.level_set_band,
                     vector_magnitude=self.vector_magnitude, compute_error=self.measure_error,
-                    tolerance=self.tolerance)
+                    tolerance=self.tolerance, sequence=self.use_sequence)
 
     def execute(self, context):
         from ..gaussvdb_addon import importer, kernel_cache
@@ -100,6 +108,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         big = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) >= MODAL_MIN_BYTES
         # the first use compiles for about a minute: run modal, so the status bar says so first
         big = big or not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
+        from ..gaussvdb_addon import sequence_import
+
+        if self.use_sequence and sequence_import.any_sequence(paths):
+            big = False  # in one go: every frame is read once, then one frame is converted
         if big and context.window is not None and not bpy.app.background and not self.options.is_repeat:
             return self._start_modal(context, paths)
         try:
@@ -116,6 +128,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         from ..gaussvdb_addon import importer
 
         opts = self._options()
+        opts.pop("sequence")
         self._skipped = []
         self._jobs = [importer.convert_steps(p, opts["grids"], opts["lods"], opts["weights"],
                                              opts["level_set_band"], opts["vector_magnitude"],

@@ -68,6 +68,10 @@ def files(tmp_path_factory):
     p["density"] = write_grid(d / "density.vdb", np.ones((8, 8, 8), np.float32))
     p["sample"] = SAMPLE
     p["out"] = str(d / "out")
+    (d / "seq").mkdir()
+    for n in (1, 2):
+        write_grid(d / "seq" / f"s_{n:04d}.vdb", np.ones((8, 8, 8), np.float32))
+    p["seq"] = str(d / "seq" / "s_####.vdb")
     return p
 
 
@@ -101,6 +105,17 @@ CASES = [
     (["render", S, "--bogus"], 2, ["--bogus"], True),
     (["render"], 2, ["file"], True),
     (["render", S, "--out", "{out}/x.bmp"], 2, ["--out", "x.bmp", ".bmp", ".png"], False),
+    # render: sequences
+    (["render", "{seq}", "--out", "{out}/x.png"], 2, ["--out", "x.png", "####"], True),
+    (["render", "{seq}", "--frames", "7-9"], 1, ["no frames of s_####.vdb between 7 and 9",
+                                                 "1-2 exist"], True),
+    (["render", "{seq}", "--frames", "a-b"], 2, ["--frames", "'a-b'"], True),
+    (["render", "{dir}/none_####.vdb"], 1, ["no frames of none_####.vdb"], True),
+    (["convert", "{seq}"], 2, ["--cache-dir"], True),
+    (["convert", "{seq}", "--cache-dir", "{out}/c", "--frames", "5-6"], 1,
+     ["no frames of s_####.vdb between 5 and 6"], True),
+    (["convert", "{seq}", "--cache-dir", "{out}/c", "--out", "{out}/x.npz"], 2,
+     ["--cache-dir", "--out"], True),
     # convert
     (["convert", S, "--lod", "ultra"], 2, ["--lod", "'ultra'"], True),
     (["convert", S, "--threads", "x"], 2, ["--threads", "'x'"], True),

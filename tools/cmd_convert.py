@@ -1,5 +1,6 @@
 """`./gaussvdb convert FILE.vdb [--grid G] [--vector-magnitude] --lod PRESET [--weights paper|field]
-[--tolerance T [--max-error E]] [--out F.npz] [--json]`
+[--tolerance T [--max-error E]] [--out F.npz] [--json]`, or a sequence: `./gaussvdb convert
+'DIR/name_####.vdb' [--frames A-B] --lod PRESET --cache-dir DIR [--json]`
 
 Reads one grid (default: the first scalar grid with active voxels), builds its Gaussians,
 measures the field error and prints one JSON object (indented; one line with --json). With
@@ -7,6 +8,11 @@ measures the field error and prints one JSON object (indented; one line with --j
 what was met when it was not). --out
 writes the compact encoding (kernels.lod.encode_compact) as an .npz that kernels.lod.decode_compact
 reads back. A refusal is one line on stderr (tools/cli_errors.py).
+
+A sequence is converted frame by frame into the on-disk cache the add-on reads (Render >
+Sequences > Disk Cache with this folder): one file per frame, grid and LOD, so a render node
+given the folder converts nothing. One JSON object: per frame the seconds, Gaussians, cache and
+.vdb bytes; an unreadable frame is an error naming it, the others are still converted.
 """
 from __future__ import annotations
 
@@ -77,11 +83,78 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
     return res
 
 
+def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magnitude=False,
+                     level_set_band=True) -> dict:
+    """Every frame of a sequence into the add-on's disk cache (kernels.sequence.write_frame)."""
+    import cli_grids
+
+    from kernels import sequence as seq
+    from kernels.lod import build_lod
+    from kernels.render.transfer import voxel_stats
+    from kernels.vdb import VDBFormatError, read_topology, read_vdb, sanitize_nonfinite
+
+    pat = seq.parse(os.path.abspath(pattern))
+    if pat is None:
+        raise cli_errors.InputError(f"{pattern}: no frame number or #### in the file name")
+    present = pat.scan()
+    if not present:
+        raise cli_errors.InputError(f"no frames of {pat.text} in {pat.directory}")
+    if frames:
+        present = [n for n in present if frames[0] <= n <= frames[-1]]
+        if not present:
+            raise cli_errors.InputError(f"no frames of {pat.text} between {frames[0]} and {frames[-1]}")
+    name, last = None, None
+    for n in present:  # the grid: named, or the first usable one of the first frame with one
+        try:
+            name = cli_grids.choose_grid(pat.path(n), grid, vector_magnitude)
+            break
+        except (cli_errors.InputError, ValueError) as err:
+            last = err
+    if name is None:
+        raise last
+    items, errors = [], []
+    t_all = time.perf_counter()
+    for n in present:
+        path = pat.path(n)
+        item = {"frame": n, "file": os.path.basename(path), "vdb_bytes": os.path.getsize(path)}
+        t0 = time.perf_counter()
+        try:
+            g = next((g for g in read_vdb(path, grids=[name]).grids if g.name == name), None)
+            if g is None:
+                read_topology(path)  # the grid is absent, the file is fine
+        except (VDBFormatError, OSError) as err:
+            msg = f"frame {n}: cannot read {os.path.basename(path)}: {getattr(err, 'reason', None) or err}"
+            errors.append(msg)
+            item["error"] = msg
+            print(f"gaussvdb convert: error: {msg}", file=sys.stderr)
+            items.append(item)
+            continue
+        gs, values = None, None
+        if g is not None and g.active_voxels:
+            sanitize_nonfinite(g)  # as the importer does
+            values = voxel_stats(g) if g.grid_class != "level_set" else {}
+            gs = build_lod(g, lod, weights, level_set_band=level_set_band)
+        out = os.path.join(cache_dir, seq.cache_name(path, name, lod, weights, level_set_band,
+                                                     vector_magnitude))
+        item.update(seconds=time.perf_counter() - t0, gaussians=gs.count if gs is not None else 0,
+                    cache_bytes=seq.write_frame(out, gs, values or None, path, name, lod),
+                    cache_file=os.path.basename(out))
+        items.append(item)
+    done = [i for i in items if "cache_bytes" in i]
+    return {"pattern": pat.path(0).replace(pat.name(0), pat.text), "grid": name, "lod": lod,
+            "weights": weights, "cache_dir": os.path.abspath(cache_dir), "frames": items,
+            "seconds_total": time.perf_counter() - t_all,
+            "cache_bytes": sum(i["cache_bytes"] for i in done),
+            "vdb_bytes": sum(i["vdb_bytes"] for i in done), "errors": errors}
+
+
 def main(argv: list[str]) -> int:
     from kernels.lod import DEFAULTS, PRESETS, WEIGHTS
 
     ap = cli_errors.ArgumentParser(prog="gaussvdb convert", description=__doc__.split("\n\n")[1])
-    ap.add_argument("file")
+    ap.add_argument("file", help="a .vdb file, or a sequence: 'DIR/name_####.vdb'")
+    ap.add_argument("--frames", help="frames of a sequence: 35-50 (default: every frame found)")
+    ap.add_argument("--cache-dir", help="a sequence: the disk-cache folder to write")
     ap.add_argument("--grid", help="grid name (default: the first scalar grid with active voxels)")
     ap.add_argument("--vector-magnitude", action="store_true",
                     help="vec3 grids (velocity) count as their magnitude, as in the importer")
@@ -101,6 +174,23 @@ def main(argv: list[str]) -> int:
         import numba
         numba.set_num_threads(a.threads)
     th = {k: getattr(a, k) for k in DEFAULTS if getattr(a, k) is not None}
+    if a.frames or a.cache_dir or "#" in os.path.basename(a.file):
+        from kernels import sequence as seq
+
+        if not a.cache_dir:
+            raise cli_errors.UsageError("a sequence converts into a disk cache: give --cache-dir DIR",
+                                        "gaussvdb convert")
+        if th or a.out:  # the cache must hold what the add-on would convert
+            raise cli_errors.UsageError("--cache-dir takes the preset's own thresholds and no --out",
+                                        "gaussvdb convert")
+        try:
+            frames = seq.parse_frames(a.frames) if a.frames else None
+        except ValueError as err:
+            raise cli_errors.UsageError(f"--frames: {err}", "gaussvdb convert") from None
+        res = convert_sequence(a.file, frames, a.grid, a.lod, a.weights, a.cache_dir,
+                               a.vector_magnitude, not a.no_band)
+        print(json.dumps(res) if a.json else json.dumps(res, indent=2))
+        return 1 if res["errors"] else 0
     res = convert(a.file, a.grid, a.lod, a.weights, level_set_band=not a.no_band,
                   error=not a.no_error, out=a.out, vector_magnitude=a.vector_magnitude, **th)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))

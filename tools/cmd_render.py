@@ -1,4 +1,4 @@
-"""`./gaussvdb render FILE.vdb [--grid G] [--vector-magnitude] [--lod PRESET]
+"""`./gaussvdb render FILE.vdb|'DIR/name_####.vdb' [--frames A-B] [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
 [--threads N] [--density D] [--log-scale] [--legend] [--json]`
 
@@ -8,7 +8,8 @@ transform (colormaps come out exact), renders through the GAUSSVDB engine
 --json one JSON line: seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
 threads, lod, grid, colormap, out, warnings. Warnings (a log scale over values <= 0) go to stderr.
 Options and the grid are checked before Blender starts; a refusal or a failed render is one line
-on stderr (tools/cli_errors.py).
+on stderr (tools/cli_errors.py). A '#' pattern or --frames renders a sequence, one image per
+frame (tools/render_sequence.py).
 """
 from __future__ import annotations
 
@@ -33,7 +34,9 @@ def parse(argv):
     from kernels.render import MODES, colormap_names
 
     p = cli_errors.ArgumentParser(prog="gaussvdb render", description=__doc__.split("\n\n")[1])
-    p.add_argument("file")
+    p.add_argument("file", help="a .vdb file, or a sequence: 'DIR/name_####.vdb'")
+    p.add_argument("--frames", default=None, help="frames of a sequence to render: 35-50 "
+                   "(default: every frame found); --out then needs #### for the number")
     p.add_argument("--grid", default=None, help="grid name (default: the first scalar grid with "
                    "active voxels)")
     p.add_argument("--vector-magnitude", action="store_true",
@@ -65,15 +68,16 @@ def world_box(obj):
     return wc[:, :3].min(0), wc[:, :3].max(0)
 
 
-def build_scene(bpy, objs, args):
-    """Camera framing the objects' world box, engine settings; returns the scene."""
+def build_scene(bpy, objs, args, box=None):
+    """Camera framing the objects' world box (``box(obj)``, default their bounds), engine
+    settings; returns the scene."""
     import mathutils
     import numpy as np
 
     from kernels.render import Camera
 
     scene = bpy.context.scene
-    boxes = [world_box(o) for o in objs]
+    boxes = [(box or world_box)(o) for o in objs]
     lo = np.min([b[0] for b in boxes], axis=0)
     hi = np.max([b[1] for b in boxes], axis=0)
     cam = Camera.frame_box(lo, hi, args.width, args.height, direction=VIEW)
@@ -158,6 +162,17 @@ def quiet_render(final_render, scene, out) -> dict:
 
 def main(argv) -> int:
     args = parse(argv)
+    if args.frames or "#" in os.path.basename(args.file):
+        import render_sequence
+
+        stats = render_sequence.render(args, build_scene, quiet_render)
+        if args.json:
+            print(json.dumps(stats, sort_keys=True))
+        else:
+            for item in stats["frames"]:
+                print(f"{item['out']}: frame {item['frame']}, {item['gaussians']:,} Gaussians, "
+                      f"sync {item['seconds_sync']:.2f} s, render {item['seconds_render']:.2f} s")
+        return 1 if stats["errors"] else 0
     stats = render(args)
     for msg in stats.get("warnings", ()):
         print(f"gaussvdb render: warning: {msg}", file=sys.stderr)

@@ -1,0 +1,136 @@
+"""`./gaussvdb render 'DIR/fluid_data_####.vdb' --frames 35-50 --out 'out/frame_####.png'`:
+a numbered sequence rendered frame by frame (cmd_render.py hands over when the file is a
+'#' pattern or --frames is given).
+
+The sequence is imported once (one frame converted, every frame's value figures read, so the
+automatic range is the range over the frames rendered), scene frame N shows file N, the camera
+frames the box of every frame, and each frame converts on demand as the timeline reaches it.
+A missing frame holds the previous one (a warning), an unreadable one is an error naming it and
+the next frames still render (exit status 1 at the end). --json prints one JSON object with
+per-frame figures.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import cli_errors
+from cli_errors import InputError, UsageError
+
+
+def frames_of(args):
+    """(Pattern, frames to render, frames on disk among them) from the command line; refused
+    before Blender starts."""
+    from kernels import sequence as seq
+
+    pat = seq.parse(os.path.abspath(args.file))
+    if pat is None:
+        raise InputError(f"{args.file}: no frame number or #### in the file name")
+    present = pat.scan()
+    if args.frames:
+        try:
+            frames = seq.parse_frames(args.frames)
+        except ValueError as err:
+            raise UsageError(f"--frames: {err}", "gaussvdb render") from None
+    else:
+        frames = present
+    if not present:
+        raise InputError(f"no frames of {pat.text} in {pat.directory}")
+    inside = [n for n in present if frames[0] <= n <= frames[-1]]
+    if not inside:
+        raise InputError(f"no frames of {pat.text} between {frames[0]} and {frames[-1]} in "
+                         f"{pat.directory} (frames {present[0]}-{present[-1]} exist)")
+    if len(frames) > 1 and "#" not in os.path.basename(args.out):
+        raise UsageError(f"--out {args.out}: several frames need #### in the name for the frame "
+                         "number", "gaussvdb render")
+    return pat, frames, inside
+
+
+def out_path(pattern_text, frame):
+    from kernels import sequence as seq
+
+    pat = seq.parse(pattern_text)
+    return pat.path(frame) if pat is not None and "#" in os.path.basename(pattern_text) else pattern_text
+
+
+def choose_grid(pat, inside, args):
+    """The grid to render: the named one or the first usable one of the first frame that has
+    one (a flame grid may be empty in the first frames)."""
+    import cli_grids
+
+    last = None
+    for n in inside:
+        try:
+            return cli_grids.choose_grid(pat.path(n), args.grid, args.vector_magnitude)
+        except (InputError, ValueError) as err:
+            last = err
+    raise last
+
+
+def sequence_box(obj):
+    """World box of every frame (the stored union of the frames' leaf boxes)."""
+    import numpy as np
+
+    lo, hi = np.array(obj.gaussvdb.leaf_box_min), np.array(obj.gaussvdb.leaf_box_max)
+    corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    wc = corners @ np.array(obj.matrix_world, np.float64).T
+    return wc[:, :3].min(0), wc[:, :3].max(0)
+
+
+def render(args, build_scene, quiet_render) -> dict:
+    from blender_session import addon_module, start
+
+    pat, frames, inside = frames_of(args)
+    grid = choose_grid(pat, inside, args)
+    bpy = start()
+    importer = addon_module("gaussvdb_addon.importer")
+    sequence_import = addon_module("gaussvdb_addon.sequence_import")
+    final_render = addon_module("gaussvdb_addon.final_render")
+    import cmd_render
+
+    cmd_render.check_format(final_render, args.out)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    t0 = time.perf_counter()
+    try:
+        objs = sequence_import.import_sequence(
+            pat.path(inside[0]), [inside[0], inside[-1]], grids=[grid], lods=(args.lod,),
+            weights=args.weights, vector_magnitude=args.vector_magnitude,
+            collection=bpy.context.scene.collection, compute_error=False)
+    except importer.ImportError_ as err:
+        raise InputError(f"{args.file}: {err}") from err
+    seconds_import = time.perf_counter() - t0
+    vol = objs[0].gaussvdb.source_volume
+    # scene frame N shows file N; frames past the last file hold it (the warning says so)
+    vol.frame_start, vol.frame_offset = inside[0], inside[0] - 1
+    vol.frame_duration = max(frames[-1], inside[-1]) - inside[0] + 1
+    vol.sequence_mode = "CLIP"
+    scene = build_scene(bpy, objs, args, box=sequence_box)
+    per_frame, warnings, errors = [], [], []
+    t_all = time.perf_counter()
+    for f in frames:
+        scene.frame_set(f)
+        out = os.path.abspath(out_path(args.out, f))
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+        t1 = time.perf_counter()
+        stats = quiet_render(final_render, scene, out)
+        item = {"frame": f, "out": out, "seconds": time.perf_counter() - t1,
+                "seconds_sync": stats["seconds_sync"], "seconds_render": stats["seconds_render"],
+                "gaussians": stats["gaussians"]}
+        for msg in stats.get("warnings", ()):
+            if msg not in warnings:
+                warnings.append(msg)
+                print(f"gaussvdb render: warning: {msg}", file=sys.stderr)
+        for msg in stats.get("errors", ()):
+            errors.append(msg)
+            item["error"] = msg
+            print(f"gaussvdb render: error: {cli_errors.one_line(msg)}", file=sys.stderr)
+        per_frame.append(item)
+    total = time.perf_counter() - t_all
+    return {"pattern": pat.path(0).replace(pat.name(0), pat.text), "grid": grid, "lod": args.lod,
+            "mode": scene.gaussvdb.mode.lower(), "width": args.width, "height": args.height,
+            "colormap": args.colormap, "seconds_import": seconds_import, "seconds_total": total,
+            "seconds_per_frame": total / len(frames), "frames": per_frame,
+            "value_range": stats.get("value_range"), "warnings": warnings, "errors": errors,
+            "sequence": True}
