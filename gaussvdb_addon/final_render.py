@@ -2,7 +2,8 @@
 
 The frame's set-up is done once (``device.begin_frame``), then the image (or the render border's
 region, as Cycles does: Blender pads it to the full size unless the result is cropped) is drawn in
-bands of whole screen-tile rows (``device.band_rows``), sized from the drawing time so one band takes about 0.15 s, with
+bands of whole screen-tile rows (``device.band_rows``: eight per thread at least), sized from the
+drawing time so one band takes about 0.15 s, with
 ``update_progress`` / ``update_result`` after each band and ``test_break`` before each (and polled
 by the device inside a band), so Esc stops a render within half a second. Combined is linear and
 premultiplied, written straight into the pass buffer (row 0 is the bottom row in both). Any error
