@@ -20,7 +20,7 @@ import threading
 
 import numpy as np
 
-from ..kernels.render import RenderObject, RenderScene, TransferFunction, value_range, voxel_stats
+from ..kernels.render import RenderObject, RenderScene, TransferFunction, clip, value_range, voxel_stats
 from ..kernels.render.legend import LegendEntry
 from . import blender_settings
 
@@ -241,6 +241,26 @@ def level_set_color(settings):
     return LEVEL_SET_AXES.get(settings.level_set_color, "z")
 
 
+def clip_halfspaces(gs, depsgraph, warnings):
+    """The world half-spaces (k, 4) that the object's clip Empties keep (object_settings.ClipProps),
+    or None. An Empty with a zero scale cuts nothing and adds a warning."""
+    empties = [(e, False) for e in (gs.clip_plane,) if e is not None]
+    empties += [(e, True) for e in (gs.clip_box,) if e is not None]
+    if gs.clip_collection is not None:
+        empties += [(e, e.empty_display_type == "CUBE") for e in gs.clip_collection.all_objects
+                    if e.type == "EMPTY"]
+    rows = []
+    for e, is_box in empties:
+        m = np.array(e.evaluated_get(depsgraph).matrix_world, np.float64)
+        try:
+            rows.append(clip.box_from_matrix(m) if is_box else clip.plane_from_matrix(m))
+        except ValueError as err:
+            msg = f"clip Empty '{e.name}': {err}; it cuts nothing"
+            if msg not in warnings:
+                warnings.append(msg)
+    return np.concatenate(rows) if rows else None
+
+
 class _Entry:
     __slots__ = ("key", "gaussians", "grid", "values", "count")
 
@@ -350,7 +370,8 @@ class SceneSync:
                     if msg and msg not in self.warnings:
                         self.warnings.append(msg)
             objects.append(RenderObject(e.gaussians, mw, grid=e.grid, level_set_color=ls_color,
-                                        name=orig.name, tf=own))
+                                        name=orig.name, tf=own,
+                                        clip=clip_halfspaces(gs, depsgraph, self.warnings)))
             total += e.count
 
         for name in list(self.entries):

@@ -28,7 +28,7 @@ from ._cpu_math import (
     whitened_chord,
 )
 from ._cpu_tiles import TILE
-from ._cpu_walk import walk_object
+from ._cpu_walk import clip_interval, walk_object
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
 __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
@@ -101,10 +101,11 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
 
 @njit(**_hot)
 def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv,
-                g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, max_depth):
+                g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, max_depth, rclip):
     """The seed paper: closest hit (smallest entry, ties by id) entering at or after the current
     origin, fixed midpoint steps over its chord, A = rho dt / det(Sigma), C += T c A,
-    T *= exp(-A), continue after its exit; overlapping Gaussians entered earlier are ignored."""
+    T *= exp(-A), continue after its exit; overlapping Gaussians entered earlier are ignored.
+    Chords are cut to their object's clip interval rclip[ob] (clip.py)."""
     while st[10] < max_depth and st[0] >= st[9]:
         best = -1
         bt0 = INF
@@ -124,11 +125,16 @@ def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_it
                     continue
                 hw = math.sqrt((k2 - q) / a)
                 t0 = ts - hw
-                if t0 < tcur or t0 >= p1:
+                t1 = ts + hw
+                if t0 < rclip[ob, 0]:
+                    t0 = rclip[ob, 0]
+                if t1 > rclip[ob, 1]:
+                    t1 = rclip[ob, 1]
+                if t0 < tcur or t0 >= p1 or not t1 > t0:
                     continue
                 if t0 < bt0 or (t0 == bt0 and g < best):
                     bt0 = t0
-                    bt1 = ts + hw
+                    bt1 = t1
                     best = g
         if best < 0:
             return
@@ -199,7 +205,7 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
 def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj,
                  cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
                  g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls,
-                 tf_lut, tf_par, samp, acc):
+                 tf_lut, tf_par, samp, acc, rclip):
     """paper (mode 2) / reference (mode 3): piece by piece over the covering leaves."""
     npieces = n if n_obj == 1 else merged_pieces(n, iv_ta, iv_tb, srt, bnd)
     ptr = 0
@@ -238,7 +244,7 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
                 continue
         if mode == 2:
             paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu,
-                        g_inv, g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, maxd)
+                        g_inv, g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, maxd, rclip)
             if st[10] >= maxd:
                 return
         else:
@@ -252,14 +258,14 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
 def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
                g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc,
-               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
+               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
     return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                        cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
                        g_obj, g_clo, g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
                        tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, svals,
-                       sact, samp, acc, cb, qs, fs)
+                       sact, samp, acc, cb, qs, fs, rclip)
 
 
 @njit(**_jit)
@@ -275,14 +281,16 @@ def ray_scratch(cap):
 def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                   cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w,
                   g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks,
-                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk,
-                  t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb,
-                  iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact,
-                  samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk):
+                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par, settings,
+                  max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta,
+                  iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals,
+                  sact, samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk,
+                  rclip):
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0) and image columns
     [c0, c1) (output column i - c0), tile by tile (see render_band); no allocation, no reference
     counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than Hs
-    has. Rays run over [clip start, clip end] along the view axis (cam[19:21])."""
+    has. Rays run over [clip start, clip end] along the view axis (cam[19:21]); each object's part
+    of a ray is further cut to its clip half-spaces obj_clip[ob] (rclip[ob], clip.py)."""
     W = int(cam[1])
     Hh = int(cam[2])
     ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
@@ -336,8 +344,10 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
             dz = M[2, 0] * dwx + M[2, 1] * dwy + M[2, 2] * dwz
             ro[ob, 0], ro[ob, 1], ro[ob, 2] = ox, oy, oz
             rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
+            rclip[ob, 0], rclip[ob, 1] = clip_interval(obj_clip[ob], owx, owy, owz, dwx, dwy, dwz)
             if not tiled:
-                n = walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin[ob], ndims[ob], noff[ob],
+                n = walk_object(ox, oy, oz, dx, dy, dz, max(tn, rclip[ob, 0]),
+                                min(tf, rclip[ob, 1]), nmin[ob], ndims[ob], noff[ob],
                                 node_table, node_cells, cell_skip, ob, iv_ta, iv_tb, iv_obj,
                                 iv_cell, n, max_walk)
         st[0] = 1.0
@@ -358,19 +368,20 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
             trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                          cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col,
                          g_val, g_obj, g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz,
-                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc)
+                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, rclip)
         else:
             if tiled:
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
                                  ro, rd, g_rec, g_col, g_val, g_obj, k2, tn, tf, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
-                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk)
+                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk,
+                                 rclip)
             else:
                 rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
                                 cell_start, cell_items, face_start, face_items, g_rec, g_sph,
                                 obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tn, tf, tau_max,
                                 obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
-                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs)
+                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip)
             if rc == OVERFLOW:
                 return p
         T = st[0]
@@ -389,8 +400,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
 def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-                t_mask, out_rgba, out_depth, out_value, out_segs):
+                obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par, settings, max_walk, t_start,
+                t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
     """nr image rows from j0 (output rows from jr0), columns [c0, c1), within one row of screen
     tiles, one tile after
     the other, so a tile's candidate list and the Gaussians it names stay in cache for its pixels
@@ -421,6 +432,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
     fs = np.empty(5)
     cand = np.empty(NB, np.int64)  # trace_tiles' candidate block and its tests
     blk = np.empty((NB, 8))
+    rclip = np.empty((n_obj, 2))  # this ray's clip interval per object
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
     Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
@@ -430,11 +442,11 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
         p = render_pixels(p, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
                           g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par,
-                          settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
+                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, tf_lut,
+                          tf_par, settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
-                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk)
+                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk, rclip)
         if p < 0:
             return
         cap *= 2  # more Gaussians on ray p than this band's scratch holds: grow, redo it
@@ -445,8 +457,8 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
 def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_table, node_cells,
                 cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-                t_mask, out_rgba, out_depth, out_value, out_segs):
+                obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par, settings, max_walk, t_start,
+                t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
     """Render rows [row0, row1) and columns [col0, col1) into out_* (indexed from 0 = row0,
     col0) in bands of the screen tiles' rows (render_band), spread over the image in the order
     0, 16, 32, ..., 1, 17, ...: the threads get contiguous blocks of it, so each samples the
@@ -467,5 +479,6 @@ def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_
         render_band(j0 - row0, j0, j1 - j0, col0, col1, mode, cam, w2i, nmin, ndims, noff, node_table,
                     node_cells, cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
                     g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings,
-                    max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs)
+                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par,
+                    settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value,
+                    out_segs)

@@ -474,9 +474,9 @@ def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_c
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
                 k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H,
-                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
+                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip):
     """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order
-    (the chords clipped to the ray's [tn, tf]).
+    (the chords clipped to the ray's [tn, tf] and their object's clip interval rclip[ob]).
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
     for ob in range(ro.shape[0]):
@@ -488,6 +488,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
         cid = iv_cell[iv]
         ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
         dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
+        tno, tfo = max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1])
         ox32 = np.float32(ox - obj_ref[ob, 0])
         oy32 = np.float32(oy - obj_ref[ob, 1])
         oz32 = np.float32(oz - obj_ref[ob, 2])
@@ -520,7 +521,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
                 czp = (g_sph[g, 0] - ox32) * dy32 - (g_sph[g, 1] - oy32) * dx32
                 if cxp * cxp + cyp * cyp + czp * czp > g_sph[g, 3] * dd32:
                     continue
-            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf, H, hid, ev_t, ev_k, ev_h,
+            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tno, tfo, H, hid, ev_t, ev_k, ev_h,
                         qs) != 0:
                 return OVERFLOW
         lastc[ob, 0] = cx
@@ -539,7 +540,7 @@ NB = 32  # candidates tested per block (trace_tiles)
 
 
 @njit(**_hot, inline="always")
-def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk):
+def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
     """The tests (chord) of candidates cand[:nc] into blk[c] = s, e, ts, aa, qq, ra, pk, apart
     from the queue insertion: no branch then waits on a candidate's division and roots (together
     they cost ~18% more on dense volumes)."""
@@ -549,13 +550,13 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk):
         ob = 0 if one else g_obj[g]
         (blk[c, 0], blk[c, 1], blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5],
          blk[c, 6]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
-                            g_rec, k2, tn, tf)
+                            g_rec, k2, max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]))
 
 
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
                 k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
-                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk):
+                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk, rclip):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
     by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles), in blocks of NB
     candidates (the entries with the pixel's mask bit), the chords clipped to the ray's [tn, tf].
@@ -581,7 +582,7 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
                      tf_par, svals, sact, samp, acc):
                 return 0
-        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk)
+        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip)
         nh = qs[NH]
         nq = qs[NQ]
         q0 = qs[QH]

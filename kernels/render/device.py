@@ -20,6 +20,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from ..cachedir import set_cache_root
+from . import clip
 from .accel import build_gauss_accel, build_voxel_accel
 from .camera import Camera
 from .scene import RenderScene, same_geometry
@@ -177,7 +178,7 @@ class CPUDevice(Device):
                 obj_ls[k, 8:11] = np.asarray(c, np.float64)[:3]
             obj_ls[k, 7] = self.voxel_world[k]
         obj_step = np.full(n, float(scene.step))
-        return tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step
+        return tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step, clip.pack(objs)
 
     def _gauss_weights(self, mode, tfs, obj_tf, obj_kind, obj_ls):
         """Per-Gaussian extinction scale (particles/paper: density * alpha(v) * a; level sets:
@@ -330,7 +331,7 @@ class CPUDevice(Device):
         return time.perf_counter() - t0
 
     def _build_frame(self, mode, scene, camera, prep):
-        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step = prep
+        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step, obj_clip = prep
         if mode == 3:
             acc = self.vacc
             if acc is None:
@@ -379,7 +380,7 @@ class CPUDevice(Device):
         args = (self.w2i, acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
                 cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col,
                 g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz,
-                obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
+                obj_kind, obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par, settings, acc.max_walk,
                 t_start, t_items, t_mask)
         return _Frame(mode, camera.packed(), camera.width, camera.height, args)
 

@@ -24,6 +24,8 @@ class RenderObject:
     ``tf``: optional per-object TransferFunction overriding the scene's.
     ``level_set_color``: 'x' | 'y' | 'z' (colormap over that WORLD coordinate across the object's
     world bounds; default 'z', the height) or an RGB triple (scene-linear constant colour).
+    ``clip``: optional (k, 4) world half-spaces a x + b y + c z + d >= 0 the object is cut to
+    (kernels.render.clip builds them from planes and boxes).
     """
     gaussians: Any = None
     matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -32,6 +34,7 @@ class RenderObject:
     tf: Optional[TransferFunction] = None
     level_set_color: Any = "z"
     name: str = ""
+    clip: Any = None
 
     def __post_init__(self):
         self.matrix_world = np.asarray(self.matrix_world, np.float64).reshape(4, 4)
