@@ -48,6 +48,8 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
         col.prop(settings, "viewport_lod", text="Viewport")
         col.prop(settings, "render_lod", text="Render")
         layout.operator("gaussvdb.reload", icon="FILE_REFRESH")
+        if settings.grid_class == "level_set":
+            layout.prop(settings, "level_set_style")
         draw_clip(layout, settings)
 
         stats = settings.stats().get("lods", [])

@@ -5,6 +5,7 @@ The point attributes themselves are described in importer.py (and README "Point-
 the Subdivision modifier's viewport and render levels. With ``use_scene_tf`` off the object's own
 transfer function (the TransferFunctionProps fields) colours it instead of the scene's.
 Clipping (``clip_*``): Empties that cut the object (kernels/render/clip.py), in every mode.
+``level_set_style``: level sets as lit surfaces (default) or translucent shells.
 """
 
 import json
@@ -71,7 +72,18 @@ class ClipProps:
                                                  "too: Cube display as a box, others as a plane")
 
 
-class GaussVDBObjectSettings(ClipProps, TransferFunctionProps, bpy.types.PropertyGroup):
+class SurfaceProps:
+    """Level sets: a lit opaque surface (the zero level, shaded by the scene's lights) or the
+    translucent shell of the narrow band."""
+    level_set_style: EnumProperty(
+        name="Level Set", update=_tag, default="SURFACE",
+        items=[("SURFACE", "Surface", "Opaque surface at the zero level, lit by the scene's lights "
+                                      "(a headlight when there are none)"),
+               ("SHELL", "Shell", "Translucent shell of the narrow band, unlit")],
+        description="How a level set is drawn")
+
+
+class GaussVDBObjectSettings(ClipProps, SurfaceProps, TransferFunctionProps, bpy.types.PropertyGroup):
     is_gaussvdb: BoolProperty(name="GaussVDB Object", default=False)
     source_volume: PointerProperty(name="Source", type=bpy.types.Volume,
                                    description="Volume datablock holding the source file's path "

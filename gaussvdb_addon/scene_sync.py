@@ -22,6 +22,7 @@ import numpy as np
 
 from ..kernels.render import RenderObject, RenderScene, TransferFunction, clip, value_range, voxel_stats
 from ..kernels.render.legend import LegendEntry
+from ..kernels.render.lights import Light
 from . import blender_settings
 
 _GRID_CACHE = {}  # (abspath, grid, mtime, size) -> GridData
@@ -261,6 +262,24 @@ def clip_halfspaces(gs, depsgraph, warnings):
     return np.concatenate(rows) if rows else None
 
 
+def scene_lights(depsgraph):
+    """The visible lights as kernels Lights: suns along their local -Z, strength their irradiance;
+    point, spot and area lights as a point at their centre, strength their power."""
+    out = []
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob.type != "LIGHT" or not inst.show_self:
+            continue
+        data = ob.data
+        m = np.array(inst.matrix_world, np.float64)
+        color = tuple(float(c) for c in data.color)
+        if data.type == "SUN":
+            out.append(Light("sun", -m[:3, 2], color, float(data.energy)))
+        else:
+            out.append(Light("point", m[:3, 3], color, float(data.energy)))
+    return tuple(out)
+
+
 class _Entry:
     __slots__ = ("key", "gaussians", "grid", "values", "count")
 
@@ -371,7 +390,8 @@ class SceneSync:
                         self.warnings.append(msg)
             objects.append(RenderObject(e.gaussians, mw, grid=e.grid, level_set_color=ls_color,
                                         name=orig.name, tf=own,
-                                        clip=clip_halfspaces(gs, depsgraph, self.warnings)))
+                                        clip=clip_halfspaces(gs, depsgraph, self.warnings),
+                                        surface=gs.level_set_style == "SURFACE"))
             total += e.count
 
         for name in list(self.entries):
@@ -380,7 +400,8 @@ class SceneSync:
         rs = RenderScene(objects=objects, background=blender_settings.background(scene), mode=mode,
                          transmittance_min=settings.early_termination, step=settings.step_scale,
                          tau_max=settings.tau_max, threads=blender_settings.threads(scene),
-                         passes=tuple(blender_settings.passes(depsgraph.view_layer)))
+                         passes=tuple(blender_settings.passes(depsgraph.view_layer)),
+                         lights=scene_lights(depsgraph))
         self.value_range = auto_range(scene_items, settings.log_scale) or (0.0, 1.0)
         self.gaussians = total
         self.size = size

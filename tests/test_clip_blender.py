@@ -98,3 +98,31 @@ def test_cli_clip_options(bpy_module, tmp_path):
     np.testing.assert_array_equal(keep, plain)
     none = _alpha(bpy, _render(tmp_path, "none", "--clip-plane", "1e6,0,0,1,0,0"))
     assert none.max() == 0.0
+
+
+def test_level_set_style_and_lights_reach_the_render_scene(bpy_module, scene):
+    """Level sets default to lit surfaces; Shell keeps the translucent shell. Suns shine along
+    their local -Z with their strength; point, spot and area lights are points with their power."""
+    bpy = bpy_module
+    ss = _mod("gaussvdb_addon.scene_sync")
+    ob = make_object(bpy, "Shell", lattice(4, 4, 4), grid_class="level_set")
+    sync = ss.SceneSync(viewport=False)
+    rs = sync.sync(bpy.context.evaluated_depsgraph_get())
+    assert rs.objects[0].surface and rs.lights == ()
+    ob.gaussvdb.level_set_style = "SHELL"
+    for kind, loc, energy in (("SUN", (0, 0, 5), 3.0), ("AREA", (1, 2, 3), 500.0)):
+        data = bpy.data.lights.new(kind, kind)
+        data.energy, data.color = energy, (1.0, 0.5, 0.25)
+        lt = bpy.data.objects.new(kind, data)
+        lt.location = loc
+        lt.rotation_euler = (0.0, math.pi / 2, 0.0) if kind == "SUN" else (0.0, 0.0, 0.0)
+        scene.collection.objects.link(lt)
+    sync.dirty = True
+    rs = sync.sync(bpy.context.evaluated_depsgraph_get())
+    assert not rs.objects[0].surface
+    by_kind = {lt.kind: lt for lt in rs.lights}
+    np.testing.assert_allclose(by_kind["sun"].vector, (-1, 0, 0), atol=1e-6)  # local -Z turned to -X
+    assert by_kind["sun"].strength == 3.0
+    np.testing.assert_allclose(by_kind["point"].vector, (1, 2, 3))
+    np.testing.assert_allclose(by_kind["point"].color, (1.0, 0.5, 0.25))
+    assert by_kind["point"].strength == 500.0

@@ -1,6 +1,7 @@
 """`./gaussvdb render FILE.vdb [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
-[--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI] [--json]`
+[--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI]
+[--level-set surface|shell] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
@@ -56,6 +57,8 @@ def parse(argv):
     p.add_argument("--clip-box", action="append", default=[], type=cli_errors.clip_box,
                    metavar="X0,Y0,Z0,X1,Y1,Z1", help="keep only the part inside this world box "
                    "(repeatable)")
+    p.add_argument("--level-set", default="surface", choices=("surface", "shell"),
+                   help="level sets as lit opaque surfaces (headlight) or translucent shells")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
     a.width, a.height = a.size
@@ -114,6 +117,7 @@ def build_scene(bpy, objs, args):
         o.gaussvdb.render_lod = args.lod
         o.gaussvdb.viewport_lod = args.lod
         o.gaussvdb.clip_collection = clips
+        o.gaussvdb.level_set_style = args.level_set.upper()
     return scene
 
 

@@ -14,7 +14,9 @@ from ..jit import njit, parallel_njit, prange
 from ._cpu_gauss import NB, NF, OVERFLOW, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
+    HIT_OB,
     INF,
+    NST,
     _hot,
     _jit,
     add_sample,
@@ -25,6 +27,8 @@ from ._cpu_math import (
     line_integral,
     lut_pos,
     sample_color,
+    shade_hit,
+    surface_hit,
     whitened_chord,
 )
 from ._cpu_tiles import TILE
@@ -48,12 +52,90 @@ def lut_rows(lut, x, out):
             out[n, c] = lut[i, c] * (1.0 - w) + lut[i + 1, c] * w
 
 
+@njit(**_hot, inline="always")
+def brick_xyz(cxyz, x, y, z):
+    """Index point -> coordinates in its leaf's 10^3 brick (apron of one voxel), clamped."""
+    fx = min(max(x - (cxyz[0] * 8 - 1), 0.0), 8.999999)
+    fy = min(max(y - (cxyz[1] * 8 - 1), 0.0), 8.999999)
+    fz = min(max(z - (cxyz[2] * 8 - 1), 0.0), 8.999999)
+    return fx, fy, fz
+
+
+@njit(**_hot)
+def trilinear(B, fx, fy, fz):
+    i0, j0, k0 = int(fx), int(fy), int(fz)
+    ax, ay, az = fx - i0, fy - j0, fz - k0
+    c00 = B[i0, j0, k0] * (1 - ax) + B[i0 + 1, j0, k0] * ax
+    c10 = B[i0, j0 + 1, k0] * (1 - ax) + B[i0 + 1, j0 + 1, k0] * ax
+    c01 = B[i0, j0, k0 + 1] * (1 - ax) + B[i0 + 1, j0, k0 + 1] * ax
+    c11 = B[i0, j0 + 1, k0 + 1] * (1 - ax) + B[i0 + 1, j0 + 1, k0 + 1] * ax
+    return (c00 * (1 - ay) + c10 * ay) * (1 - az) + (c01 * (1 - ay) + c11 * ay) * az
+
+
+@njit(**_hot)
+def trilinear_grad(B, fx, fy, fz):
+    """The gradient (per index unit) of the brick's values at a point: the voxels' central
+    differences (one-sided at the brick's edge), interpolated trilinearly; smoother than the
+    interpolant's own, piecewise, gradient."""
+    i0, j0, k0 = int(fx), int(fy), int(fz)
+    ax, ay, az = fx - i0, fy - j0, fz - k0
+    n = B.shape[0] - 1
+    gx = gy = gz = 0.0
+    for di in range(2):
+        i = i0 + di
+        wx = ax if di else 1.0 - ax
+        for dj in range(2):
+            j = j0 + dj
+            wy = ay if dj else 1.0 - ay
+            for dk in range(2):
+                k = k0 + dk
+                w = wx * wy * (az if dk else 1.0 - az)
+                ia, ib = max(i - 1, 0), min(i + 1, n)
+                ja, jb = max(j - 1, 0), min(j + 1, n)
+                ka, kb = max(k - 1, 0), min(k + 1, n)
+                gx += w * (B[ib, j, k] - B[ia, j, k]) / (ib - ia)
+                gy += w * (B[i, jb, k] - B[i, ja, k]) / (jb - ja)
+                gz += w * (B[i, j, kb] - B[i, j, ka]) / (kb - ka)
+    return gx, gy, gz
+
+
+@njit(**_hot)
+def sdf_crossing(sprev, ob, phi, t, p0, h, ro, rd, B, cxyz):
+    """Object ob's signed distance phi at sample t: the hit t where it first turns <= 0 after a
+    positive sample (bisection in this leaf's brick over [max(previous t, p0 - h), t]); t = p0
+    when its first sample is already inside; else INF. Records the sample in sprev."""
+    tp = sprev[ob, 1]
+    pp = sprev[ob, 0]
+    sprev[ob, 0] = phi
+    sprev[ob, 1] = t
+    if phi > 0.0:
+        return INF
+    if tp != tp:
+        return p0
+    if not pp > 0.0:
+        return INF  # already inside (behind a hit that was ignored): no new crossing
+    lo = max(tp, p0 - h)
+    hi = t
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        fx, fy, fz = brick_xyz(cxyz, ro[ob, 0] + mid * rd[ob, 0], ro[ob, 1] + mid * rd[ob, 1],
+                               ro[ob, 2] + mid * rd[ob, 2])
+        if trilinear(B, fx, fy, fz) > 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
 @njit(**_hot)
 def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc):
+                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev):
     """reference: trilinear voxel samples at midpoints, exact exponential compositing. Each
     object's medium exists only inside its leaves; objects overlapping in a piece add extinction,
-    colours tau-weighted."""
+    colours tau-weighted. Surfaces (obj_kind 2): the first sign change of the trilinear signed
+    distance from + to - between samples (sprev: the object's previous one), refined by bisection;
+    a ray that starts inside (a clip or the camera's cut) hits at its start. The volumes composite
+    up to the hit, which ends the ray (surface_hit)."""
     dt = INF
     for c in range(ncov):
         ob = cov_obj[c]
@@ -68,6 +150,8 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
     for i in range(n):
         t = p0 + (i + 0.5) * h
         acc[:] = 0.0
+        best = -1
+        bt = INF
         for c in range(ncov):
             ob = cov_obj[c]
             x = ro[ob, 0] + t * rd[ob, 0]
@@ -88,11 +172,32 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
             c01 = B[i0, j0, k0 + 1] * (1 - ax) + B[i0 + 1, j0, k0 + 1] * ax
             c11 = B[i0, j0 + 1, k0 + 1] * (1 - ax) + B[i0 + 1, j0 + 1, k0 + 1] * ax
             val = (c00 * (1 - ay) + c10 * ay) * (1 - az) + (c01 * (1 - ay) + c11 * ay) * az
+            if obj_kind[ob] == 2:
+                th = sdf_crossing(sprev, ob, val, t, p0, h, ro, rd, B, cell_xyz[cid])
+                if th < bt:
+                    bt = th
+                    best = c
+                continue
             if obj_kind[ob] == 1:  # SDF (world units) -> occupancy with a one-voxel ramp
                 val = 0.5 - val / obj_ls[ob, 7]
             st[7] += 1
             sample_color(ob, val, x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             add_sample(acc, samp)
+        if best >= 0:
+            ob = cov_obj[best]
+            B = bricks[cov_cell[best]]
+            cxyz = cell_xyz[cov_cell[best]]
+            x = ro[ob, 0] + bt * rd[ob, 0]
+            y = ro[ob, 1] + bt * rd[ob, 1]
+            z = ro[ob, 2] + bt * rd[ob, 2]
+            fx, fy, fz = brick_xyz(cxyz, x, y, z)
+            gx, gy, gz = trilinear_grad(B, fx, fy, fz)
+            if acc[0] > 0.0 and bt > t - 0.5 * h:  # the volumes before the hit in this sample
+                sig = acc[0]
+                composite(st, sig * (bt - (t - 0.5 * h)), acc[1] / sig, acc[2] / sig, acc[3] / sig,
+                          acc[4] / acc[5] if acc[5] > 0 else np.nan, t - 0.5 * h, bt)
+            surface_hit(st, ob, bt, gx, gy, gz, obj_ls, tf_lut[obj_tf[ob]], x, y, z)
+            return
         if acc[0] > 0.0:
             composite_sample(st, acc, t, h)
             if st[0] < st[9]:
@@ -205,7 +310,7 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
 def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj,
                  cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
                  g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls,
-                 tf_lut, tf_par, samp, acc, rclip):
+                 tf_lut, tf_par, samp, acc, rclip, sprev):
     """paper (mode 2) / reference (mode 3): piece by piece over the covering leaves."""
     npieces = n if n_obj == 1 else merged_pieces(n, iv_ta, iv_tb, srt, bnd)
     ptr = 0
@@ -249,8 +354,8 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
                 return
         else:
             reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                            obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc)
-        if st[0] < st[9]:
+                            obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev)
+        if st[0] < st[9] or st[8] > 0.0:
             return
 
 
@@ -258,14 +363,14 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
 def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
                g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc,
-               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip):
+               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
     return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                        cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
                        g_obj, g_clo, g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
                        tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, svals,
-                       sact, samp, acc, cb, qs, fs, rclip)
+                       sact, samp, acc, cb, qs, fs, rclip, sprev)
 
 
 @njit(**_jit)
@@ -281,11 +386,11 @@ def ray_scratch(cap):
 def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                   cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w,
                   g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks,
-                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par, settings,
+                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings,
                   max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta,
                   iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals,
                   sact, samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk,
-                  rclip):
+                  rclip, sprev):
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0) and image columns
     [c0, c1) (output column i - c0), tile by tile (see render_band); no allocation, no reference
     counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than Hs
@@ -362,28 +467,33 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
         st[9] = tmin_T
         st[10] = 0.0
         st[11] = -INF
+        for ob in range(n_obj):
+            sprev[ob, 0] = 0.0
+            sprev[ob, 1] = np.nan
         if n == 0:
             pass
         elif mode >= 2:
             trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                          cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col,
                          g_val, g_obj, g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz,
-                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, rclip)
+                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, rclip, sprev)
         else:
             if tiled:
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
                                  ro, rd, g_rec, g_col, g_val, g_obj, k2, tn, tf, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
                                  ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk,
-                                 rclip)
+                                 rclip, sprev)
             else:
                 rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
                                 cell_start, cell_items, face_start, face_items, g_rec, g_sph,
                                 obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tn, tf, tau_max,
                                 obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
-                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip)
+                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev)
             if rc == OVERFLOW:
                 return p
+        if st[8] > 0.0:
+            shade_hit(st, w2i[int(st[HIT_OB])], lights, settings, owx, owy, owz, dwx, dwy, dwz)
         T = st[0]
         io = i - c0
         out_rgba[jr, io, 0] = st[1] + T * bgr * bga
@@ -400,7 +510,7 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
 def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par, settings, max_walk, t_start,
+                obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings, max_walk, t_start,
                 t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
     """nr image rows from j0 (output rows from jr0), columns [c0, c1), within one row of screen
     tiles, one tile after
@@ -427,12 +537,13 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
     samp = np.empty(5)
     acc = np.empty(6)  # one sample's sums (add_sample)
     cb = np.empty(6)  # particles: colour bounds of an interval's members
-    st = np.empty(12)
+    st = np.empty(NST)
     qs = np.empty(6, np.int64)  # sweep state (_cpu_gauss)
     fs = np.empty(5)
     cand = np.empty(NB, np.int64)  # trace_tiles' candidate block and its tests
     blk = np.empty((NB, 8))
     rclip = np.empty((n_obj, 2))  # this ray's clip interval per object
+    sprev = np.empty((n_obj, 2))  # surfaces: each object's previous sample (value, t or index)
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
     Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
@@ -442,11 +553,11 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
         p = render_pixels(p, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
                           g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, tf_lut,
+                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut,
                           tf_par, settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
-                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk, rclip)
+                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk, rclip, sprev)
         if p < 0:
             return
         cap *= 2  # more Gaussians on ray p than this band's scratch holds: grow, redo it
@@ -457,7 +568,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
 def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_table, node_cells,
                 cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par, settings, max_walk, t_start,
+                obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings, max_walk, t_start,
                 t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
     """Render rows [row0, row1) and columns [col0, col1) into out_* (indexed from 0 = row0,
     col0) in bands of the screen tiles' rows (render_band), spread over the image in the order
@@ -479,6 +590,6 @@ def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_
         render_band(j0 - row0, j0, j1 - j0, col0, col1, mode, cam, w2i, nmin, ndims, noff, node_table,
                     node_cells, cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
                     g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, tf_lut, tf_par,
+                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par,
                     settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value,
                     out_segs)

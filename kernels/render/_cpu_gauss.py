@@ -40,6 +40,7 @@ from ._cpu_math import (
     erf_fast,
     erf_span,
     sample_color,
+    surface_hit,
 )
 from ._cpu_tiles import TILE
 
@@ -372,9 +373,38 @@ def _move_slot(H, act, k, j):
 
 
 @njit(**_hot)
+def mixture_hit(st, ob, th, ti, hstep, nact, act, hid, g_rec, g_obj, ro, rd, obj_ls, lut, acc):
+    """Object ob's surface at th, inside the sample at ti: the volumes of that sample composite
+    over [ti - hstep / 2, th], then the hit with the outward normal -grad(mixture) at th, summed
+    over the active Gaussians of ob (index space)."""
+    if acc[0] > 0.0 and th > ti - 0.5 * hstep:
+        sig = acc[0]
+        composite(st, sig * (th - (ti - 0.5 * hstep)), acc[1] / sig, acc[2] / sig, acc[3] / sig,
+                  acc[4] / acc[5] if acc[5] > 0 else np.nan, ti - 0.5 * hstep, th)
+    x = ro[ob, 0] + th * rd[ob, 0]
+    y = ro[ob, 1] + th * rd[ob, 1]
+    z = ro[ob, 2] + th * rd[ob, 2]
+    gx = gy = gz = 0.0
+    for k in range(nact):
+        g = hid[act[k]]
+        if g_obj[g] != ob:
+            continue
+        ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
+        ux, uy, uz = (x - g_rec[g, 0]) * ix, (y - g_rec[g, 1]) * iy, (z - g_rec[g, 2]) * iz
+        e = g_rec[g, 6] * math.exp(-0.5 * (ux * ux + uy * uy + uz * uz))
+        gx += e * ux * ix
+        gy += e * uy * iy
+        gz += e * uz * iz
+    surface_hit(st, ob, th, gx, gy, gz, obj_ls, lut, x, y, z)
+
+
+@njit(**_hot)
 def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind, obj_tf,
-                obj_ls, tf_lut, tf_par, svals, sact, samp, acc):
-    """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque."""
+                obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev):
+    """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque.
+    Surfaces (obj_kind 2): the mixture's first rise through 0.5 between samples (sprev: the
+    object's previous sample value and index), placed by the secant; the volumes composite up to
+    it and the ray ends there (mixture_hit)."""
     q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
     hstep = fs[HSTEP]
     cend = fs[CEND]
@@ -440,14 +470,32 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
                 k += 1
         st[7] += nact
         acc[:] = 0.0
+        best = -1
+        bt = INF
         for ob in range(n_obj):
             if sact[ob] == 0:
+                continue
+            if obj_kind[ob] == 2:
+                sv = svals[ob]
+                prev = sprev[ob, 0] if sprev[ob, 1] == isamp - 1 else 0.0  # none active: 0
+                sprev[ob, 0] = sv
+                sprev[ob, 1] = isamp
+                if sv >= 0.5 and prev < 0.5:
+                    th = ti - hstep + (0.5 - prev) / (sv - prev) * hstep
+                    if th < bt:
+                        bt = th
+                        best = ob
                 continue
             x = ro[ob, 0] + ti * rd[ob, 0]
             y = ro[ob, 1] + ti * rd[ob, 1]
             z = ro[ob, 2] + ti * rd[ob, 2]
             sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             add_sample(acc, samp)
+        if best >= 0:
+            mixture_hit(st, best, bt, ti, hstep, nact, act, hid, g_rec, g_obj, ro, rd, obj_ls,
+                        tf_lut[obj_tf[best]], acc)
+            done = 1
+            break
         isamp += 1
         if acc[0] > 0.0:
             composite_sample(st, acc, ti, hstep)
@@ -462,19 +510,19 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
 @njit(**_hot, inline="always")
 def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp,
-          acc):
+          acc, sprev):
     if mode == 0:
         return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, act, cb, g_col, g_val,
                                tau_max)
     return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind,
-                       obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
+                       obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev)
 
 
 @njit(**_hot)
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
                 k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H,
-                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip):
+                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev):
     """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order
     (the chords clipped to the ray's [tn, tf] and their object's clip interval rclip[ob]).
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
@@ -531,7 +579,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
         horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
         if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
                  g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
-                 tf_par, svals, sact, samp, acc):
+                 tf_par, svals, sact, samp, acc, sprev):
             return 0
     return 0
 
@@ -556,7 +604,7 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
                 k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
-                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk, rclip):
+                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk, rclip, sprev):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
     by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles), in blocks of NB
     candidates (the entries with the pixel's mask bit), the chords clipped to the ray's [tn, tf].
@@ -580,7 +628,7 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
             swept = qs[NH]
             if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
-                     tf_par, svals, sact, samp, acc):
+                     tf_par, svals, sact, samp, acc, sprev):
                 return 0
         test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip)
         nh = qs[NH]
@@ -598,5 +646,5 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
         qs[NQ] = nq
     sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact,
-          samp, acc)
+          samp, acc, sprev)
     return 0

@@ -246,3 +246,89 @@ def composite_sample(st, acc, t, h):
     if sig > 0.0:
         composite(st, sig * h, acc[1] / sig, acc[2] / sig, acc[3] / sig,
                   acc[4] / acc[5] if acc[5] > 0 else np.nan, t - 0.5 * h, t + 0.5 * h)
+
+
+# surface hits (lit level sets): the ray's state st[8] = 1 and these columns of st
+HIT_T, HIT_G, HIT_OB, HIT_C = 12, 13, 16, 17
+NST = 20
+
+
+@njit(**_hot)
+def surface_hit(st, ob, t, gx, gy, gz, obj_ls, lut, x, y, z):
+    """The ray ends on object ob's surface at t (index point x, y, z; gx, gy, gz: the outward
+    normal's direction in index space): its albedo (the constant colour or the colormap over a
+    world coordinate, as for shells) and the depth, for render_pixels to shade."""
+    st[8] = 1.0
+    st[HIT_T] = t
+    st[HIT_G] = gx
+    st[HIT_G + 1] = gy
+    st[HIT_G + 2] = gz
+    st[HIT_OB] = ob
+    ls = obj_ls[ob]
+    if ls[0] > 0.5:
+        st[HIT_C], st[HIT_C + 1], st[HIT_C + 2] = ls[8], ls[9], ls[10]
+    else:
+        c = ls[1] * x + ls[2] * y + ls[3] * z + ls[4]
+        u = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else 0.5
+        i, w = lut_pos(lut, min(max(u, 0.0), 1.0))
+        for k in range(3):
+            st[HIT_C + k] = lut[i, k] * (1.0 - w) + lut[i + 1, k] * w
+    if st[4] == BG_DEPTH:
+        st[4] = t
+
+
+@njit(**_hot)
+def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
+    """Blinn-Phong at the hit in st (see surface_hit) for the world ray o + t d: the normal is
+    the index-space gradient through M (world -> index) transposed, turned to face the viewer;
+    par[9:13] = (ambient, diffuse, specular, shininess) (the render settings). Adds T x colour and
+    makes the ray opaque."""
+    gx, gy, gz = st[HIT_G], st[HIT_G + 1], st[HIT_G + 2]
+    nx = M[0, 0] * gx + M[1, 0] * gy + M[2, 0] * gz
+    ny = M[0, 1] * gx + M[1, 1] * gy + M[2, 1] * gz
+    nz = M[0, 2] * gx + M[1, 2] * gy + M[2, 2] * gz
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if nn > 0.0:
+        nx, ny, nz = nx / nn, ny / nn, nz / nn
+    else:
+        nx, ny, nz = -dx, -dy, -dz
+    if nx * dx + ny * dy + nz * dz > 0.0:
+        nx, ny, nz = -nx, -ny, -nz
+    t = st[HIT_T]
+    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    ka, kd, ks, sh = par[9], par[10], par[11], par[12]
+    r = ka * st[HIT_C]
+    g = ka * st[HIT_C + 1]
+    b = ka * st[HIT_C + 2]
+    for k in range(lights.shape[0]):
+        kind = lights[k, 0]
+        er, eg, eb = lights[k, 4], lights[k, 5], lights[k, 6]
+        if kind == 1.0:  # point: towards it, falling off as 1 / r^2
+            lx, ly, lz = lights[k, 1] - px, lights[k, 2] - py, lights[k, 3] - pz
+            d2 = lx * lx + ly * ly + lz * lz
+            if not d2 > 0.0:
+                continue
+            dl = math.sqrt(d2)
+            lx, ly, lz = lx / dl, ly / dl, lz / dl
+            er, eg, eb = er / d2, eg / d2, eb / d2
+        elif kind == 0.0:  # sun: against its travel direction
+            lx, ly, lz = -lights[k, 1], -lights[k, 2], -lights[k, 3]
+        else:  # headlight
+            lx, ly, lz = -dx, -dy, -dz
+        ndl = nx * lx + ny * ly + nz * lz
+        if ndl <= 0.0:
+            continue
+        hx, hy, hz = lx - dx, ly - dy, lz - dz
+        hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+        spec = 0.0
+        if hn > 0.0 and ks > 0.0:
+            ndh = max(nx * hx + ny * hy + nz * hz, 0.0) / hn
+            spec = ks * ndh ** sh
+        r += er * (kd * ndl * st[HIT_C] + spec)
+        g += eg * (kd * ndl * st[HIT_C + 1] + spec)
+        b += eb * (kd * ndl * st[HIT_C + 2] + spec)
+    T = st[0]
+    st[1] += T * r
+    st[2] += T * g
+    st[3] += T * b
+    st[0] = 0.0
