@@ -14,8 +14,12 @@ from ..jit import njit, parallel_njit, prange
 from ._cpu_gauss import NB, NF, OVERFLOW, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
+    HIT_G,
     HIT_OB,
+    HIT_T,
     INF,
+    LEAF,
+    NL,
     NST,
     _hot,
     _jit,
@@ -125,6 +129,73 @@ def sdf_crossing(sprev, ob, phi, t, p0, h, ro, rd, B, cxyz):
         else:
             hi = mid
     return 0.5 * (lo + hi)
+
+
+NORMAL_BLUR = 1.0  # field surfaces: variance (voxels^2) of the blur under the normal
+NORMAL_REACH = 4.0  # voxels around the hit searched for Gaussians
+
+
+@njit(**_hot)
+def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_start, cell_items,
+                   g_rec):
+    """The outward normal at a field-mode surface hit (st, see surface_hit): -grad of the
+    object's mixture blurred by a Gaussian of variance NORMAL_BLUR (each sigma^2 grows by it),
+    summed over the Gaussians centred in the leaf cells within NORMAL_REACH of the hit (each is
+    listed in the cell of its centre, among others). The blur evens out the lattice of
+    voxel-sized Gaussians the shell is made of."""
+    ob = int(st[HIT_OB])
+    t = st[HIT_T]
+    x = ro[ob, 0] + t * rd[ob, 0]
+    y = ro[ob, 1] + t * rd[ob, 1]
+    z = ro[ob, 2] + t * rd[ob, 2]
+    lo0 = int(math.floor((x + 0.5 - NORMAL_REACH) / LEAF))
+    lo1 = int(math.floor((y + 0.5 - NORMAL_REACH) / LEAF))
+    lo2 = int(math.floor((z + 0.5 - NORMAL_REACH) / LEAF))
+    hi0 = int(math.floor((x + 0.5 + NORMAL_REACH) / LEAF))
+    hi1 = int(math.floor((y + 0.5 + NORMAL_REACH) / LEAF))
+    hi2 = int(math.floor((z + 0.5 + NORMAL_REACH) / LEAF))
+    nm = nmin[ob]
+    nd = ndims[ob]
+    gx = gy = gz = 0.0
+    for cx in range(lo0, hi0 + 1):
+        for cy in range(lo1, hi1 + 1):
+            for cz in range(lo2, hi2 + 1):
+                nx, ny, nz = cx // NL, cy // NL, cz // NL
+                if (nx < nm[0] or ny < nm[1] or nz < nm[2] or nx >= nm[0] + nd[0]
+                        or ny >= nm[1] + nd[1] or nz >= nm[2] + nd[2]):
+                    continue
+                nid = node_table[noff[ob] + ((nx - nm[0]) * nd[1] + (ny - nm[1])) * nd[2] + (nz - nm[2])]
+                if nid < 0:
+                    continue
+                cid = node_cells[nid, ((cx - nx * NL) * NL + (cy - ny * NL)) * NL + (cz - nz * NL)]
+                if cid < 0:
+                    continue
+                for j in range(cell_start[cid], cell_start[cid + 1]):
+                    g = cell_items[j]
+                    if (math.floor((g_rec[g, 0] + 0.5) / LEAF) != cx
+                            or math.floor((g_rec[g, 1] + 0.5) / LEAF) != cy
+                            or math.floor((g_rec[g, 2] + 0.5) / LEAF) != cz):
+                        continue  # counted in the cell of its centre
+                    w = g_rec[g, 6]
+                    if w == 0.0:
+                        continue
+                    ix = 1.0 / math.sqrt(1.0 / g_rec[g, 3] ** 2 + NORMAL_BLUR)
+                    iy = 1.0 / math.sqrt(1.0 / g_rec[g, 4] ** 2 + NORMAL_BLUR)
+                    iz = 1.0 / math.sqrt(1.0 / g_rec[g, 5] ** 2 + NORMAL_BLUR)
+                    ux = (x - g_rec[g, 0]) * ix
+                    uy = (y - g_rec[g, 1]) * iy
+                    uz = (z - g_rec[g, 2]) * iz
+                    q = ux * ux + uy * uy + uz * uz
+                    if q > 16.0:
+                        continue
+                    e = w * ix * iy * iz / (g_rec[g, 3] * g_rec[g, 4] * g_rec[g, 5]) * math.exp(-0.5 * q)
+                    gx += e * ux * ix
+                    gy += e * uy * iy
+                    gz += e * uz * iz
+    st[HIT_G] = gx
+    st[HIT_G + 1] = gy
+    st[HIT_G + 2] = gz
+    st[8] = 1.0
 
 
 @njit(**_hot)
@@ -492,6 +563,9 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
                                 ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev)
             if rc == OVERFLOW:
                 return p
+        if st[8] == 2.0:
+            mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_start,
+                           cell_items, g_rec)
         if st[8] > 0.0:
             shade_hit(st, w2i[int(st[HIT_OB])], lights, settings, owx, owy, owz, dwx, dwy, dwz)
         T = st[0]

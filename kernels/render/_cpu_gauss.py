@@ -373,10 +373,11 @@ def _move_slot(H, act, k, j):
 
 
 @njit(**_hot)
-def mixture_hit(st, ob, th, ti, hstep, nact, act, hid, g_rec, g_obj, ro, rd, obj_ls, lut, acc):
+def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
     """Object ob's surface at th, inside the sample at ti: the volumes of that sample composite
     over [ti - hstep / 2, th], then the hit with the outward normal -grad(mixture) at th, summed
-    over the active Gaussians of ob (index space)."""
+    is left for render_pixels to take from the Gaussians around the hit (mixture_normal): the
+    ray's active set is only a tube around it."""
     if acc[0] > 0.0 and th > ti - 0.5 * hstep:
         sig = acc[0]
         composite(st, sig * (th - (ti - 0.5 * hstep)), acc[1] / sig, acc[2] / sig, acc[3] / sig,
@@ -384,18 +385,8 @@ def mixture_hit(st, ob, th, ti, hstep, nact, act, hid, g_rec, g_obj, ro, rd, obj
     x = ro[ob, 0] + th * rd[ob, 0]
     y = ro[ob, 1] + th * rd[ob, 1]
     z = ro[ob, 2] + th * rd[ob, 2]
-    gx = gy = gz = 0.0
-    for k in range(nact):
-        g = hid[act[k]]
-        if g_obj[g] != ob:
-            continue
-        ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
-        ux, uy, uz = (x - g_rec[g, 0]) * ix, (y - g_rec[g, 1]) * iy, (z - g_rec[g, 2]) * iz
-        e = g_rec[g, 6] * math.exp(-0.5 * (ux * ux + uy * uy + uz * uz))
-        gx += e * ux * ix
-        gy += e * uy * iy
-        gz += e * uz * iz
-    surface_hit(st, ob, th, gx, gy, gz, obj_ls, lut, x, y, z)
+    surface_hit(st, ob, th, 0.0, 0.0, 0.0, obj_ls, lut, x, y, z)
+    st[8] = 2.0  # the normal is still to be found
 
 
 @njit(**_hot)
@@ -492,8 +483,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             add_sample(acc, samp)
         if best >= 0:
-            mixture_hit(st, best, bt, ti, hstep, nact, act, hid, g_rec, g_obj, ro, rd, obj_ls,
-                        tf_lut[obj_tf[best]], acc)
+            mixture_hit(st, best, bt, ti, hstep, ro, rd, obj_ls, tf_lut[obj_tf[best]], acc)
             done = 1
             break
         isamp += 1
