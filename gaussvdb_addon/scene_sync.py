@@ -316,7 +316,8 @@ class SceneSync:
                     self.counters[name] = self.counters.get(name, 0) + 1
                 changed = True
             elif isinstance(idv, (bpy.types.Scene, bpy.types.Collection, bpy.types.ViewLayer,
-                                  bpy.types.Texture, bpy.types.PointCloud, bpy.types.Mesh)):
+                                  bpy.types.Texture, bpy.types.PointCloud, bpy.types.Mesh,
+                                  bpy.types.Light)):  # a light's colour or strength: surfaces
                 changed = True
                 if isinstance(idv, (bpy.types.PointCloud, bpy.types.Mesh)):
                     # data edited: every user object re-reads (names are not known here)

@@ -145,3 +145,6 @@ def test_bad_clip_is_refused():
         clip.plane_from_matrix(np.diag([1.0, 1.0, 0.0, 1.0]))
     with pytest.raises(ValueError, match="rows"):
         clip.halfspaces([[1.0, 2.0, 3.0]])
+    with pytest.raises(ValueError, match="object Brain: clip must be rows"):
+        CPUDevice().render(RenderScene([RenderObject(gaussian_set([[0.0, 0.0, 0.0]], 1.0), name="Brain",
+                                                     clip=[[1.0, 0.0, np.nan, 0.0]])]), camera(), TF)

@@ -80,7 +80,12 @@ def halfspaces(clip) -> np.ndarray:
 
 def pack(objects) -> np.ndarray:
     """(n, k, 4) for the kernels, k >= 1; short lists are padded with 0 x + 1 >= 0 (always kept)."""
-    rows = [halfspaces(getattr(o, "clip", None)) for o in objects]
+    rows = []
+    for o in objects:
+        try:
+            rows.append(halfspaces(getattr(o, "clip", None)))
+        except ValueError as err:
+            raise ValueError(f"object {getattr(o, 'name', '') or '?'}: {err}") from None
     k = max([1] + [r.shape[0] for r in rows])
     out = np.zeros((max(1, len(rows)), k, 4))
     out[:, :, 3] = 1.0
