@@ -40,8 +40,8 @@ from ._cpu_math import (
     erf_fast,
     erf_span,
     sample_color,
-    surface_hit,
 )
+from ._cpu_surface import surface_hit
 from ._cpu_tiles import TILE
 
 # hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
