@@ -1,4 +1,5 @@
-"""Object properties panel: source, class, LODs held, Viewport/Render LOD, per-LOD figures, Reload."""
+"""Object properties panel: source, class, LODs held, Viewport/Render LOD, Reload, clipping,
+per-LOD figures."""
 
 import bpy
 
@@ -8,6 +9,14 @@ def _fmt_bytes(n):
         if n >= size:
             return f"{n / size:.1f} {unit}"
     return f"{int(n)} B"
+
+
+def draw_clip(layout, settings):
+    """Clipping: plane, box, collection of Empties (object_settings.ClipProps)."""
+    col = layout.column(heading="Clip", align=True)
+    col.prop(settings, "clip_plane", text="Plane")
+    col.prop(settings, "clip_box", text="Box")
+    col.prop(settings, "clip_collection", text="Collection")
 
 
 class GAUSSVDB_PT_object(bpy.types.Panel):
@@ -43,6 +52,9 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
         col.prop(settings, "viewport_lod", text="Viewport")
         col.prop(settings, "render_lod", text="Render")
         layout.operator("gaussvdb.reload", icon="FILE_REFRESH")
+        if settings.grid_class == "level_set":
+            layout.prop(settings, "level_set_style")
+        draw_clip(layout, settings)
 
         stats = settings.stats().get("lods", [])
         if not stats:

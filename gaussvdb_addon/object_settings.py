@@ -4,6 +4,8 @@ The point attributes themselves are described in importer.py (and README "Point-
 ``lods`` lists the LODs held in gs_lod order, ``viewport_lod``/``render_lod`` pick one of them like
 the Subdivision modifier's viewport and render levels. With ``use_scene_tf`` off the object's own
 transfer function (the TransferFunctionProps fields) colours it instead of the scene's.
+Clipping (``clip_*``): Empties that cut the object (kernels/render/clip.py), in every mode.
+``level_set_style``: level sets as lit surfaces (default) or translucent shells.
 """
 
 import json
@@ -48,7 +50,40 @@ def lod_items(self, context):
     return items
 
 
-class GaussVDBObjectSettings(TransferFunctionProps, bpy.types.PropertyGroup):
+def _is_empty(self, obj):
+    return obj.type == "EMPTY"
+
+
+class ClipProps:
+    """Clipping: a plane (an Empty's local XY plane; the side its +Z axis points to stays), a box
+    (an Empty's local [-1, 1]^3 cube, as its Cube display draws it; the inside stays) and a
+    collection whose Empties cut too (Cube display: a box, any other: a plane). All cuts apply
+    together."""
+    clip_plane: PointerProperty(name="Clip Plane", type=bpy.types.Object, poll=_is_empty,
+                                update=_tag,
+                                description="Empty whose local XY plane cuts the object; the side "
+                                            "its +Z axis points to stays")
+    clip_box: PointerProperty(name="Clip Box", type=bpy.types.Object, poll=_is_empty, update=_tag,
+                              description="Empty whose local [-1, 1] cube (Cube display) keeps "
+                                          "the part of the object inside it")
+    clip_collection: PointerProperty(name="Clip Collection", type=bpy.types.Collection,
+                                     update=_tag,
+                                     description="Every Empty in this collection cuts the object "
+                                                 "too: Cube display as a box, others as a plane")
+
+
+class SurfaceProps:
+    """Level sets: a lit opaque surface (the zero level, shaded by the scene's lights) or the
+    translucent shell of the narrow band."""
+    level_set_style: EnumProperty(
+        name="Level Set", update=_tag, default="SURFACE",
+        items=[("SURFACE", "Surface", "Opaque surface at the zero level, lit by the scene's lights "
+                                      "(a headlight when there are none)"),
+               ("SHELL", "Shell", "Translucent shell of the narrow band, unlit")],
+        description="How a level set is drawn")
+
+
+class GaussVDBObjectSettings(ClipProps, SurfaceProps, TransferFunctionProps, bpy.types.PropertyGroup):
     is_gaussvdb: BoolProperty(name="GaussVDB Object", default=False)
     source_volume: PointerProperty(name="Source", type=bpy.types.Volume,
                                    description="Volume datablock holding the source file's path "

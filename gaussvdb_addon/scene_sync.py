@@ -20,8 +20,9 @@ import threading
 
 import numpy as np
 
-from ..kernels.render import RenderObject, RenderScene, TransferFunction, value_range, voxel_stats
+from ..kernels.render import RenderObject, RenderScene, TransferFunction, clip, value_range, voxel_stats
 from ..kernels.render.legend import LegendEntry
+from ..kernels.render.lights import Light
 from . import blender_settings, sequence_frames
 
 _GRID_CACHE = {}  # (abspath, grid, mtime, size) -> GridData
@@ -254,6 +255,42 @@ def _frame_matrix(obj, matrix_world, frame_i2w):
     if np.array_equal(own, frame_i2w):
         return matrix_world
     return matrix_world @ np.linalg.inv(own) @ np.asarray(frame_i2w, np.float64)
+def clip_halfspaces(gs, depsgraph, warnings):
+    """The world half-spaces (k, 4) that the object's clip Empties keep (object_settings.ClipProps),
+    or None. An Empty with a zero scale cuts nothing and adds a warning."""
+    empties = [(e, False) for e in (gs.clip_plane,) if e is not None]
+    empties += [(e, True) for e in (gs.clip_box,) if e is not None]
+    if gs.clip_collection is not None:
+        empties += [(e, e.empty_display_type == "CUBE") for e in gs.clip_collection.all_objects
+                    if e.type == "EMPTY"]
+    rows = []
+    for e, is_box in empties:
+        m = np.array(e.evaluated_get(depsgraph).matrix_world, np.float64)
+        try:
+            rows.append(clip.box_from_matrix(m) if is_box else clip.plane_from_matrix(m))
+        except ValueError as err:
+            msg = f"clip Empty '{e.name}': {err}; it cuts nothing"
+            if msg not in warnings:
+                warnings.append(msg)
+    return np.concatenate(rows) if rows else None
+
+
+def scene_lights(depsgraph):
+    """The visible lights as kernels Lights: suns along their local -Z, strength their irradiance;
+    point, spot and area lights as a point at their centre, strength their power."""
+    out = []
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob.type != "LIGHT" or not inst.show_self:
+            continue
+        data = ob.data
+        m = np.array(inst.matrix_world, np.float64)
+        color = tuple(float(c) for c in data.color)
+        if data.type == "SUN":
+            out.append(Light("sun", -m[:3, 2], color, float(data.energy)))
+        else:
+            out.append(Light("point", m[:3, 3], color, float(data.energy)))
+    return tuple(out)
 
 
 class _Entry:
@@ -293,7 +330,8 @@ class SceneSync:
                     self.counters[name] = self.counters.get(name, 0) + 1
                 changed = True
             elif isinstance(idv, (bpy.types.Scene, bpy.types.Collection, bpy.types.ViewLayer,
-                                  bpy.types.Texture, bpy.types.PointCloud, bpy.types.Mesh)):
+                                  bpy.types.Texture, bpy.types.PointCloud, bpy.types.Mesh,
+                                  bpy.types.Light)):  # a light's colour or strength: surfaces
                 changed = True
                 if isinstance(idv, (bpy.types.PointCloud, bpy.types.Mesh)):
                     # data edited: every user object re-reads (names are not known here)
@@ -385,7 +423,9 @@ class SceneSync:
                     if msg and msg not in self.warnings:
                         self.warnings.append(msg)
             objects.append(RenderObject(e.gaussians, mw, grid=e.grid, level_set_color=ls_color,
-                                        name=orig.name, tf=own))
+                                        name=orig.name, tf=own,
+                                        clip=clip_halfspaces(gs, depsgraph, self.warnings),
+                                        surface=gs.level_set_style == "SURFACE"))
             total += e.count
 
         for name in list(self.entries):
@@ -394,7 +434,8 @@ class SceneSync:
         rs = RenderScene(objects=objects, background=blender_settings.background(scene), mode=mode,
                          transmittance_min=settings.early_termination, step=settings.step_scale,
                          tau_max=settings.tau_max, threads=blender_settings.threads(scene),
-                         passes=tuple(blender_settings.passes(depsgraph.view_layer)))
+                         passes=tuple(blender_settings.passes(depsgraph.view_layer)),
+                         lights=scene_lights(depsgraph))
         self.value_range = auto_range(scene_items, settings.log_scale) or (0.0, 1.0)
         self.gaussians = total
         self.size = size

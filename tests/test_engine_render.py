@@ -14,7 +14,7 @@ W, H = 64, 32
 def _ramp_scene(bpy, scene):
     """A level-set slab 64 x 4 x 32 voxels seen along +Y by an orthographic camera whose pixel
     centres sit on the Gaussian centres: the colour over X is the colormap over X."""
-    make_object(bpy, "Slab", lattice(64, 4, 32), grid_class="level_set")
+    make_object(bpy, "Slab", lattice(64, 4, 32), grid_class="level_set").gaussvdb.level_set_style = "SHELL"
     add_camera(bpy, scene, (31.5, -20.0, 15.5), (math.pi / 2, 0.0, 0.0), ortho_scale=64.0)
     setup_render(scene, W, H)
     s = scene.gaussvdb

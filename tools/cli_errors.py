@@ -51,6 +51,32 @@ def size(text: str) -> tuple:
     return w, h
 
 
+def clip_plane(text: str) -> tuple:
+    """'px,py,pz,nx,ny,nz' -> a world point and a non-zero normal (the side it points to stays)."""
+    v = _floats(text, 6, "px,py,pz,nx,ny,nz")
+    if not any(v[3:]):
+        raise argparse.ArgumentTypeError(f"the normal (last three numbers) must not be zero, not {text!r}")
+    return v[:3], v[3:]
+
+
+def clip_box(text: str) -> tuple:
+    """'x0,y0,z0,x1,y1,z1' -> the world box's min and max corners (min < max on every axis)."""
+    v = _floats(text, 6, "x0,y0,z0,x1,y1,z1")
+    if not all(a < b for a, b in zip(v[:3], v[3:])):
+        raise argparse.ArgumentTypeError(f"needs x0 < x1, y0 < y1 and z0 < z1, not {text!r}")
+    return v[:3], v[3:]
+
+
+def _floats(text, n, shape):
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != n or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"must be {n} finite numbers {shape}, not {text!r}")
+    return v
+
+
 def threads(text: str) -> int:
     """A thread count: 0 (all cores) up to the cores numba may use."""
     try:

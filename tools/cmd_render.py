@@ -1,6 +1,7 @@
 """`./gaussvdb render FILE.vdb|'DIR/name_####.vdb' [--frames A-B] [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
-[--threads N] [--density D] [--log-scale] [--legend] [--json]`
+[--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI]
+[--level-set surface|shell] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
@@ -53,6 +54,14 @@ def parse(argv):
     p.add_argument("--transparent", action="store_true", help="transparent film (alpha kept)")
     p.add_argument("--log-scale", action="store_true", help="log10 transfer function")
     p.add_argument("--legend", action="store_true", help="draw the colour legend (scalar bar)")
+    p.add_argument("--clip-plane", action="append", default=[], type=cli_errors.clip_plane,
+                   metavar="PX,PY,PZ,NX,NY,NZ", help="cut the volume by the world plane through P "
+                   "with normal N, keeping the side N points to (repeatable)")
+    p.add_argument("--clip-box", action="append", default=[], type=cli_errors.clip_box,
+                   metavar="X0,Y0,Z0,X1,Y1,Z1", help="keep only the part inside this world box "
+                   "(repeatable)")
+    p.add_argument("--level-set", default="surface", choices=("surface", "shell"),
+                   help="level sets as lit opaque surfaces (headlight) or translucent shells")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
     a.width, a.height = a.size
@@ -107,10 +116,37 @@ def build_scene(bpy, objs, args, box=None):
     if args.density is not None:
         s.density_unit, s.density = "WORLD", args.density
     # else the default: density 10 per object size, about 10 optical-depth units across the box
+    clips = clip_collection(bpy, scene, args)
     for o in objs:
         o.gaussvdb.render_lod = args.lod
         o.gaussvdb.viewport_lod = args.lod
+        o.gaussvdb.clip_collection = clips
+        o.gaussvdb.level_set_style = args.level_set.upper()
     return scene
+
+
+def clip_collection(bpy, scene, args):
+    """The --clip-plane/--clip-box cuts as Empties in one collection (a plane: an Empty whose +Z
+    is the normal; a box: a Cube Empty scaled to the half extents), or None."""
+    import mathutils
+
+    if not (args.clip_plane or args.clip_box):
+        return None
+    coll = bpy.data.collections.new("GaussVDB Clip")
+    scene.collection.children.link(coll)
+    for k, (p, n) in enumerate(args.clip_plane):
+        e = bpy.data.objects.new(f"Clip Plane {k + 1}", None)
+        e.empty_display_type = "SINGLE_ARROW"
+        rot = mathutils.Vector(n).normalized().to_track_quat("Z", "Y")
+        e.matrix_world = mathutils.Matrix.LocRotScale(mathutils.Vector(p), rot, None)
+        coll.objects.link(e)
+    for k, (lo, hi) in enumerate(args.clip_box):
+        e = bpy.data.objects.new(f"Clip Box {k + 1}", None)
+        e.empty_display_type = "CUBE"
+        e.location = [0.5 * (a + b) for a, b in zip(lo, hi)]
+        e.scale = [0.5 * (b - a) for a, b in zip(lo, hi)]
+        coll.objects.link(e)
+    return coll
 
 
 def check_format(final_render, out):

@@ -1,10 +1,11 @@
 """GaussVDB rendering kernels: cameras, transfer functions, colormaps, devices (no bpy)."""
+from . import clip
 from .camera import Camera, generate_rays
 from .colormaps import colormap, colormap_names, srgb_to_linear
 from .device import CPUDevice, Device, available_devices, get_device
 from .scene import MODES, RenderObject, RenderScene
 from .transfer import TransferFunction, value_range, voxel_stats
 
-__all__ = ["Camera", "generate_rays", "colormap", "colormap_names", "srgb_to_linear", "CPUDevice",
+__all__ = ["clip", "Camera", "generate_rays", "colormap", "colormap_names", "srgb_to_linear", "CPUDevice",
            "Device", "available_devices", "get_device", "MODES", "RenderObject",
            "RenderScene", "TransferFunction", "value_range", "voxel_stats"]

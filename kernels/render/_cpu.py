@@ -2,7 +2,8 @@
 numba cache directory can be chosen first. Every pixel is computed independently, in float64,
 so images are bitwise identical for any thread count.
 
-Modes: 0 particles, 1 field (_cpu_gauss), 2 paper, 3 reference (here).
+Modes: 0 particles, 1 field (_cpu_gauss), 2 paper, 3 reference (here); level-set surfaces in
+_cpu_surface.
 """
 from __future__ import annotations
 
@@ -14,7 +15,9 @@ from ..jit import njit, parallel_njit, prange
 from ._cpu_gauss import NB, NF, OVERFLOW, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
+    HIT_OB,
     INF,
+    NST,
     _hot,
     _jit,
     add_sample,
@@ -27,8 +30,9 @@ from ._cpu_math import (
     sample_color,
     whitened_chord,
 )
+from ._cpu_surface import brick_xyz, mixture_normal, sdf_crossing, shade_hit, surface_hit, trilinear_grad
 from ._cpu_tiles import TILE
-from ._cpu_walk import walk_object
+from ._cpu_walk import clip_interval, walk_object
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
 __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
@@ -50,10 +54,13 @@ def lut_rows(lut, x, out):
 
 @njit(**_hot)
 def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc):
+                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev):
     """reference: trilinear voxel samples at midpoints, exact exponential compositing. Each
     object's medium exists only inside its leaves; objects overlapping in a piece add extinction,
-    colours tau-weighted."""
+    colours tau-weighted. Surfaces (obj_kind 2): the first sign change of the trilinear signed
+    distance from + to - between samples (sprev: the object's previous one), refined by bisection;
+    a ray that starts inside (a clip or the camera's cut) hits at its start. The volumes composite
+    up to the hit, which ends the ray (surface_hit)."""
     dt = INF
     for c in range(ncov):
         ob = cov_obj[c]
@@ -68,6 +75,8 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
     for i in range(n):
         t = p0 + (i + 0.5) * h
         acc[:] = 0.0
+        best = -1
+        bt = INF
         for c in range(ncov):
             ob = cov_obj[c]
             x = ro[ob, 0] + t * rd[ob, 0]
@@ -88,11 +97,32 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
             c01 = B[i0, j0, k0 + 1] * (1 - ax) + B[i0 + 1, j0, k0 + 1] * ax
             c11 = B[i0, j0 + 1, k0 + 1] * (1 - ax) + B[i0 + 1, j0 + 1, k0 + 1] * ax
             val = (c00 * (1 - ay) + c10 * ay) * (1 - az) + (c01 * (1 - ay) + c11 * ay) * az
+            if obj_kind[ob] == 2:
+                th = sdf_crossing(sprev, ob, val, t, p0, h, ro, rd, B, cell_xyz[cid])
+                if th < bt:
+                    bt = th
+                    best = c
+                continue
             if obj_kind[ob] == 1:  # SDF (world units) -> occupancy with a one-voxel ramp
                 val = 0.5 - val / obj_ls[ob, 7]
             st[7] += 1
             sample_color(ob, val, x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             add_sample(acc, samp)
+        if best >= 0:
+            ob = cov_obj[best]
+            B = bricks[cov_cell[best]]
+            cxyz = cell_xyz[cov_cell[best]]
+            x = ro[ob, 0] + bt * rd[ob, 0]
+            y = ro[ob, 1] + bt * rd[ob, 1]
+            z = ro[ob, 2] + bt * rd[ob, 2]
+            fx, fy, fz = brick_xyz(cxyz, x, y, z)
+            gx, gy, gz = trilinear_grad(B, fx, fy, fz)
+            if acc[0] > 0.0 and bt > t - 0.5 * h:  # the volumes before the hit in this sample
+                sig = acc[0]
+                composite(st, sig * (bt - (t - 0.5 * h)), acc[1] / sig, acc[2] / sig, acc[3] / sig,
+                          acc[4] / acc[5] if acc[5] > 0 else np.nan, t - 0.5 * h, bt)
+            surface_hit(st, ob, bt, gx, gy, gz, obj_ls, tf_lut[obj_tf[ob]], x, y, z)
+            return
         if acc[0] > 0.0:
             composite_sample(st, acc, t, h)
             if st[0] < st[9]:
@@ -101,10 +131,11 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
 
 @njit(**_hot)
 def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv,
-                g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, max_depth):
+                g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, max_depth, rclip):
     """The seed paper: closest hit (smallest entry, ties by id) entering at or after the current
     origin, fixed midpoint steps over its chord, A = rho dt / det(Sigma), C += T c A,
-    T *= exp(-A), continue after its exit; overlapping Gaussians entered earlier are ignored."""
+    T *= exp(-A), continue after its exit; overlapping Gaussians entered earlier are ignored.
+    Chords are cut to their object's clip interval rclip[ob] (clip.py)."""
     while st[10] < max_depth and st[0] >= st[9]:
         best = -1
         bt0 = INF
@@ -124,11 +155,16 @@ def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_it
                     continue
                 hw = math.sqrt((k2 - q) / a)
                 t0 = ts - hw
-                if t0 < tcur or t0 >= p1:
+                t1 = ts + hw
+                if t0 < rclip[ob, 0]:
+                    t0 = rclip[ob, 0]
+                if t1 > rclip[ob, 1]:
+                    t1 = rclip[ob, 1]
+                if t0 < tcur or t0 >= p1 or not t1 > t0:
                     continue
                 if t0 < bt0 or (t0 == bt0 and g < best):
                     bt0 = t0
-                    bt1 = ts + hw
+                    bt1 = t1
                     best = g
         if best < 0:
             return
@@ -199,7 +235,7 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
 def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj,
                  cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
                  g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls,
-                 tf_lut, tf_par, samp, acc):
+                 tf_lut, tf_par, samp, acc, rclip, sprev):
     """paper (mode 2) / reference (mode 3): piece by piece over the covering leaves."""
     npieces = n if n_obj == 1 else merged_pieces(n, iv_ta, iv_tb, srt, bnd)
     ptr = 0
@@ -238,13 +274,13 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
                 continue
         if mode == 2:
             paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu,
-                        g_inv, g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, maxd)
+                        g_inv, g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, maxd, rclip)
             if st[10] >= maxd:
                 return
         else:
             reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                            obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc)
-        if st[0] < st[9]:
+                            obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev)
+        if st[0] < st[9] or st[8] > 0.0:
             return
 
 
@@ -252,14 +288,14 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
 def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
                g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc,
-               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
+               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
     return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
                        cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
                        g_obj, g_clo, g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
                        tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, svals,
-                       sact, samp, acc, cb, qs, fs)
+                       sact, samp, acc, cb, qs, fs, rclip, sprev)
 
 
 @njit(**_jit)
@@ -275,14 +311,16 @@ def ray_scratch(cap):
 def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                   cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w,
                   g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks,
-                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk,
-                  t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta, iv_tb,
-                  iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals, sact,
-                  samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk):
+                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings,
+                  max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta,
+                  iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals,
+                  sact, samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk,
+                  rclip, sprev):
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0) and image columns
     [c0, c1) (output column i - c0), tile by tile (see render_band); no allocation, no reference
     counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than Hs
-    has. Rays run over [clip start, clip end] along the view axis (cam[19:21])."""
+    has. Rays run over [clip start, clip end] along the view axis (cam[19:21]); each object's part
+    of a ray is further cut to its clip half-spaces obj_clip[ob] (rclip[ob], clip.py)."""
     W = int(cam[1])
     Hh = int(cam[2])
     ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
@@ -336,8 +374,10 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
             dz = M[2, 0] * dwx + M[2, 1] * dwy + M[2, 2] * dwz
             ro[ob, 0], ro[ob, 1], ro[ob, 2] = ox, oy, oz
             rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
+            rclip[ob, 0], rclip[ob, 1] = clip_interval(obj_clip[ob], owx, owy, owz, dwx, dwy, dwz)
             if not tiled:
-                n = walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin[ob], ndims[ob], noff[ob],
+                n = walk_object(ox, oy, oz, dx, dy, dz, max(tn, rclip[ob, 0]),
+                                min(tf, rclip[ob, 1]), nmin[ob], ndims[ob], noff[ob],
                                 node_table, node_cells, cell_skip, ob, iv_ta, iv_tb, iv_obj,
                                 iv_cell, n, max_walk)
         st[0] = 1.0
@@ -352,27 +392,36 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
         st[9] = tmin_T
         st[10] = 0.0
         st[11] = -INF
+        for ob in range(n_obj):
+            sprev[ob, 0] = 0.0
+            sprev[ob, 1] = np.nan
         if n == 0:
             pass
         elif mode >= 2:
             trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                          cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col,
                          g_val, g_obj, g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz,
-                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc)
+                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, rclip, sprev)
         else:
             if tiled:
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
                                  ro, rd, g_rec, g_col, g_val, g_obj, k2, tn, tf, tau_max, obj_step,
                                  obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
-                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk)
+                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk,
+                                 rclip, sprev)
             else:
                 rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
                                 cell_start, cell_items, face_start, face_items, g_rec, g_sph,
                                 obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tn, tf, tau_max,
                                 obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
-                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs)
+                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev)
             if rc == OVERFLOW:
                 return p
+        if st[8] == 2.0:
+            mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_start,
+                           cell_items, g_rec)
+        if st[8] > 0.0:
+            shade_hit(st, w2i[int(st[HIT_OB])], lights, settings, owx, owy, owz, dwx, dwy, dwz)
         T = st[0]
         io = i - c0
         out_rgba[jr, io, 0] = st[1] + T * bgr * bga
@@ -389,8 +438,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
 def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
                 cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-                t_mask, out_rgba, out_depth, out_value, out_segs):
+                obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings, max_walk, t_start,
+                t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
     """nr image rows from j0 (output rows from jr0), columns [c0, c1), within one row of screen
     tiles, one tile after
     the other, so a tile's candidate list and the Gaussians it names stay in cache for its pixels
@@ -416,11 +465,13 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
     samp = np.empty(5)
     acc = np.empty(6)  # one sample's sums (add_sample)
     cb = np.empty(6)  # particles: colour bounds of an interval's members
-    st = np.empty(12)
+    st = np.empty(NST)
     qs = np.empty(6, np.int64)  # sweep state (_cpu_gauss)
     fs = np.empty(5)
     cand = np.empty(NB, np.int64)  # trace_tiles' candidate block and its tests
     blk = np.empty((NB, 8))
+    rclip = np.empty((n_obj, 2))  # this ray's clip interval per object
+    sprev = np.empty((n_obj, 2))  # surfaces: each object's previous sample (value, t or index)
     # per-ray hit scratch (particles/field), grown on demand
     cap = 256
     Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
@@ -430,11 +481,11 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
         p = render_pixels(p, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
                           cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
                           g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par,
-                          settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
+                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut,
+                          tf_par, settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
                           out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
                           cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
-                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk)
+                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk, rclip, sprev)
         if p < 0:
             return
         cap *= 2  # more Gaussians on ray p than this band's scratch holds: grow, redo it
@@ -445,8 +496,8 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_tab
 def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_table, node_cells,
                 cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
                 g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, max_walk, t_start, t_items,
-                t_mask, out_rgba, out_depth, out_value, out_segs):
+                obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings, max_walk, t_start,
+                t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
     """Render rows [row0, row1) and columns [col0, col1) into out_* (indexed from 0 = row0,
     col0) in bands of the screen tiles' rows (render_band), spread over the image in the order
     0, 16, 32, ..., 1, 17, ...: the threads get contiguous blocks of it, so each samples the
@@ -467,5 +518,6 @@ def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_
         render_band(j0 - row0, j0, j1 - j0, col0, col1, mode, cam, w2i, nmin, ndims, noff, node_table,
                     node_cells, cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
                     g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings,
-                    max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs)
+                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par,
+                    settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value,
+                    out_segs)

@@ -41,6 +41,7 @@ from ._cpu_math import (
     erf_span,
     sample_color,
 )
+from ._cpu_surface import surface_hit
 from ._cpu_tiles import TILE
 
 # hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
@@ -372,9 +373,29 @@ def _move_slot(H, act, k, j):
 
 
 @njit(**_hot)
+def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
+    """Object ob's surface at th, inside the sample at ti: the volumes of that sample composite
+    over [ti - hstep / 2, th], then the hit with the outward normal -grad(mixture) at th, summed
+    is left for render_pixels to take from the Gaussians around the hit (mixture_normal): the
+    ray's active set is only a tube around it."""
+    if acc[0] > 0.0 and th > ti - 0.5 * hstep:
+        sig = acc[0]
+        composite(st, sig * (th - (ti - 0.5 * hstep)), acc[1] / sig, acc[2] / sig, acc[3] / sig,
+                  acc[4] / acc[5] if acc[5] > 0 else np.nan, ti - 0.5 * hstep, th)
+    x = ro[ob, 0] + th * rd[ob, 0]
+    y = ro[ob, 1] + th * rd[ob, 1]
+    z = ro[ob, 2] + th * rd[ob, 2]
+    surface_hit(st, ob, th, 0.0, 0.0, 0.0, obj_ls, lut, x, y, z)
+    st[8] = 2.0  # the normal is still to be found
+
+
+@njit(**_hot)
 def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind, obj_tf,
-                obj_ls, tf_lut, tf_par, svals, sact, samp, acc):
-    """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque."""
+                obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev):
+    """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque.
+    Surfaces (obj_kind 2): the mixture's first rise through 0.5 between samples (sprev: the
+    object's previous sample value and index), placed by the secant; the volumes composite up to
+    it and the ray ends there (mixture_hit)."""
     q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
     hstep = fs[HSTEP]
     cend = fs[CEND]
@@ -440,14 +461,31 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
                 k += 1
         st[7] += nact
         acc[:] = 0.0
+        best = -1
+        bt = INF
         for ob in range(n_obj):
             if sact[ob] == 0:
+                continue
+            if obj_kind[ob] == 2:
+                sv = svals[ob]
+                prev = sprev[ob, 0] if sprev[ob, 1] == isamp - 1 else 0.0  # none active: 0
+                sprev[ob, 0] = sv
+                sprev[ob, 1] = isamp
+                if sv >= 0.5 and prev < 0.5:
+                    th = ti - hstep + (0.5 - prev) / (sv - prev) * hstep
+                    if th < bt:
+                        bt = th
+                        best = ob
                 continue
             x = ro[ob, 0] + ti * rd[ob, 0]
             y = ro[ob, 1] + ti * rd[ob, 1]
             z = ro[ob, 2] + ti * rd[ob, 2]
             sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             add_sample(acc, samp)
+        if best >= 0:
+            mixture_hit(st, best, bt, ti, hstep, ro, rd, obj_ls, tf_lut[obj_tf[best]], acc)
+            done = 1
+            break
         isamp += 1
         if acc[0] > 0.0:
             composite_sample(st, acc, ti, hstep)
@@ -462,21 +500,21 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
 @njit(**_hot, inline="always")
 def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp,
-          acc):
+          acc, sprev):
     if mode == 0:
         return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, act, cb, g_col, g_val,
                                tau_max)
     return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind,
-                       obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc)
+                       obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev)
 
 
 @njit(**_hot)
 def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
                 face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
                 k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H,
-                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs):
+                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev):
     """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order
-    (the chords clipped to the ray's [tn, tf]).
+    (the chords clipped to the ray's [tn, tf] and their object's clip interval rclip[ob]).
     Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
     sweep_start(mode, qs, fs, cb, rd, obj_step)
     for ob in range(ro.shape[0]):
@@ -488,6 +526,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
         cid = iv_cell[iv]
         ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
         dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
+        tno, tfo = max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1])
         ox32 = np.float32(ox - obj_ref[ob, 0])
         oy32 = np.float32(oy - obj_ref[ob, 1])
         oz32 = np.float32(oz - obj_ref[ob, 2])
@@ -520,7 +559,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
                 czp = (g_sph[g, 0] - ox32) * dy32 - (g_sph[g, 1] - oy32) * dx32
                 if cxp * cxp + cyp * cyp + czp * czp > g_sph[g, 3] * dd32:
                     continue
-            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf, H, hid, ev_t, ev_k, ev_h,
+            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tno, tfo, H, hid, ev_t, ev_k, ev_h,
                         qs) != 0:
                 return OVERFLOW
         lastc[ob, 0] = cx
@@ -530,7 +569,7 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
         horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
         if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
                  g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
-                 tf_par, svals, sact, samp, acc):
+                 tf_par, svals, sact, samp, acc, sprev):
             return 0
     return 0
 
@@ -539,7 +578,7 @@ NB = 32  # candidates tested per block (trace_tiles)
 
 
 @njit(**_hot, inline="always")
-def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk):
+def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
     """The tests (chord) of candidates cand[:nc] into blk[c] = s, e, ts, aa, qq, ra, pk, apart
     from the queue insertion: no branch then waits on a candidate's division and roots (together
     they cost ~18% more on dense volumes)."""
@@ -549,13 +588,13 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk):
         ob = 0 if one else g_obj[g]
         (blk[c, 0], blk[c, 1], blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5],
          blk[c, 6]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
-                            g_rec, k2, tn, tf)
+                            g_rec, k2, max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]))
 
 
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
                 k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
-                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk):
+                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk, rclip, sprev):
     """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
     by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles), in blocks of NB
     candidates (the entries with the pixel's mask bit), the chords clipped to the ray's [tn, tf].
@@ -579,9 +618,9 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
             swept = qs[NH]
             if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
                      g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
-                     tf_par, svals, sact, samp, acc):
+                     tf_par, svals, sact, samp, acc, sprev):
                 return 0
-        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk)
+        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip)
         nh = qs[NH]
         nq = qs[NQ]
         q0 = qs[QH]
@@ -597,5 +636,5 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
         qs[NQ] = nq
     sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
           tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact,
-          samp, acc)
+          samp, acc, sprev)
     return 0

@@ -246,3 +246,8 @@ def composite_sample(st, acc, t, h):
     if sig > 0.0:
         composite(st, sig * h, acc[1] / sig, acc[2] / sig, acc[3] / sig,
                   acc[4] / acc[5] if acc[5] > 0 else np.nan, t - 0.5 * h, t + 0.5 * h)
+
+
+# surface hits (lit level sets): the ray's state st[8] = 1 and these columns of st
+HIT_T, HIT_G, HIT_OB, HIT_C = 12, 13, 16, 17
+NST = 20

@@ -127,3 +127,19 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
     return n
 
 
+@njit(**_hot)
+def clip_interval(hs, ox, oy, oz, dx, dy, dz):
+    """The t interval of the world ray o + t d inside all half-spaces hs[:, 4] (-inf, inf when
+    none cut it; lo >= hi when it misses)."""
+    lo = -INF
+    hi = INF
+    for k in range(hs.shape[0]):
+        num = hs[k, 0] * ox + hs[k, 1] * oy + hs[k, 2] * oz + hs[k, 3]
+        den = hs[k, 0] * dx + hs[k, 1] * dy + hs[k, 2] * dz
+        if den > 0.0:
+            lo = max(lo, -num / den)
+        elif den < 0.0:
+            hi = min(hi, -num / den)
+        elif num < 0.0:
+            return INF, -INF
+    return lo, hi

@@ -20,6 +20,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from ..cachedir import set_cache_root
+from . import clip, lights
 from .accel import build_gauss_accel, build_voxel_accel
 from .camera import Camera
 from .scene import RenderScene, same_geometry
@@ -162,7 +163,9 @@ class CPUDevice(Device):
         tfs = [_resample(t) for t in tfs]
         tf_lut = np.ascontiguousarray(np.stack([t.lut.astype(np.float64) for t in tfs]))
         tf_par = np.stack([t.packed() for t in tfs])
-        obj_kind = np.array([1 if o.is_level_set else 0 for o in objs], np.int32)
+        # 0 volume, 1 level-set shell, 2 level-set surface (paper mode: shells)
+        obj_kind = np.array([(2 if o.surface and scene.mode != "paper" else 1) if o.is_level_set else 0
+                             for o in objs], np.int32)
         obj_ls = np.zeros((n, 11))
         axes = {"x": 0, "y": 1, "z": 2}
         for k, o in enumerate(objs):
@@ -177,7 +180,8 @@ class CPUDevice(Device):
                 obj_ls[k, 8:11] = np.asarray(c, np.float64)[:3]
             obj_ls[k, 7] = self.voxel_world[k]
         obj_step = np.full(n, float(scene.step))
-        return tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step
+        return (tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step, clip.pack(objs),
+                lights.pack(scene.lights))
 
     def _gauss_weights(self, mode, tfs, obj_tf, obj_kind, obj_ls):
         """Per-Gaussian extinction scale (particles/paper: density * alpha(v) * a; level sets:
@@ -221,6 +225,8 @@ class CPUDevice(Device):
             for k in range(len(obj_tf)):
                 sel = cell_obj == k
                 t = tfs[obj_tf[k]]
+                if obj_kind[k] == 2:
+                    continue
                 if obj_kind[k]:
                     skip[sel] = t.density <= 0
                 else:
@@ -240,7 +246,9 @@ class CPUDevice(Device):
         for k in range(len(obj_tf)):
             sel = cobj == k
             t = tfs[obj_tf[k]]
-            if obj_kind[k]:
+            if obj_kind[k] == 2:
+                skip[sel] = hi[sel] <= 0
+            elif obj_kind[k]:
                 skip[sel] = (t.density <= 0) | (hi[sel] <= 0)
             else:
                 skip[sel] = (_range_alpha(t, lo[sel], hi[sel]) <= 0) | (t.density <= 0)
@@ -283,12 +291,14 @@ class CPUDevice(Device):
 
     @staticmethod
     def _settings(scene):
-        """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth] for render_rows."""
+        """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth, surface shading
+        (ambient, diffuse, specular, shininess)] for render_rows."""
         bg = np.asarray(scene.background, np.float64).ravel()
         bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
         return np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
                          float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
-                         float(scene.paper_steps), float(scene.paper_max_depth)])
+                         float(scene.paper_steps), float(scene.paper_max_depth),
+                         *(float(v) for v in scene.shading)])
 
     def _frame_key(self, mode, scene, camera, prep):
         """What a frame's state depends on besides the geometry (sync count): mode, tile switch,
@@ -302,6 +312,8 @@ class CPUDevice(Device):
             self.sync(scene)
         mode = MODE_IDS[scene.mode]
         prep = self._prepare(scene, tf)
+        if mode == 0 and (prep[4] == 2).any():
+            mode = 1  # surfaces are found by the field sampler: a frame with one draws as field
         key = self._frame_key(mode, scene, camera, prep)
         if self._frame is not None and self._frame.key == key:
             self.stats["seconds_setup"] = 0.0
@@ -330,7 +342,7 @@ class CPUDevice(Device):
         return time.perf_counter() - t0
 
     def _build_frame(self, mode, scene, camera, prep):
-        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step = prep
+        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step, obj_clip, light_rows = prep
         if mode == 3:
             acc = self.vacc
             if acc is None:
@@ -379,7 +391,8 @@ class CPUDevice(Device):
         args = (self.w2i, acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
                 cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col,
                 g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz,
-                obj_kind, obj_tf, obj_ls, obj_step, tf_lut, tf_par, settings, acc.max_walk,
+                obj_kind, obj_tf, obj_ls, obj_step, obj_clip, light_rows, tf_lut, tf_par, settings,
+                acc.max_walk,
                 t_start, t_items, t_mask)
         return _Frame(mode, camera.packed(), camera.width, camera.height, args)
 

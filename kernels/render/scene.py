@@ -24,6 +24,10 @@ class RenderObject:
     ``tf``: optional per-object TransferFunction overriding the scene's.
     ``level_set_color``: 'x' | 'y' | 'z' (colormap over that WORLD coordinate across the object's
     world bounds; default 'z', the height) or an RGB triple (scene-linear constant colour).
+    ``surface``: a level set drawn as a lit opaque surface (its zero level) instead of a
+    translucent shell; the Blender layer and the CLI default to it.
+    ``clip``: optional (k, 4) world half-spaces a x + b y + c z + d >= 0 the object is cut to
+    (kernels.render.clip builds them from planes and boxes).
     """
     gaussians: Any = None
     matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -32,6 +36,8 @@ class RenderObject:
     tf: Optional[TransferFunction] = None
     level_set_color: Any = "z"
     name: str = ""
+    clip: Any = None
+    surface: bool = False
 
     def __post_init__(self):
         self.matrix_world = np.asarray(self.matrix_world, np.float64).reshape(4, 4)
@@ -53,6 +59,8 @@ class RenderScene:
     paper_max_depth: int = 10        # paper mode: closest-hit continuations
     threads: Optional[int] = None
     passes: tuple = ("Depth", "Value")
+    lights: tuple = ()               # kernels.render.lights.Light; none: a headlight
+    shading: tuple = (0.1, 0.8, 0.2, 32.0)  # surfaces: Blinn-Phong ambient, diffuse, specular, shininess
 
     def __post_init__(self):
         if self.mode not in MODES:

@@ -1,0 +1,232 @@
+"""Lit opaque surfaces (level sets): the hit (surface_hit: albedo, depth), its Blinn-Phong shading
+(shade_hit), the reference mode's signed-distance crossing and normal (voxel bricks), and the field
+mode's normal from the Gaussians around the hit (mixture_normal)."""
+from __future__ import annotations
+
+import math
+
+from ..jit import njit
+from ._cpu_math import BG_DEPTH, HIT_C, HIT_G, HIT_OB, HIT_T, INF, LEAF, NL, _hot, lut_pos
+
+
+@njit(**_hot)
+def surface_hit(st, ob, t, gx, gy, gz, obj_ls, lut, x, y, z):
+    """The ray ends on object ob's surface at t (index point x, y, z; gx, gy, gz: the outward
+    normal's direction in index space): its albedo (the constant colour or the colormap over a
+    world coordinate, as for shells) and the depth, for render_pixels to shade."""
+    st[8] = 1.0
+    st[HIT_T] = t
+    st[HIT_G] = gx
+    st[HIT_G + 1] = gy
+    st[HIT_G + 2] = gz
+    st[HIT_OB] = ob
+    ls = obj_ls[ob]
+    if ls[0] > 0.5:
+        st[HIT_C], st[HIT_C + 1], st[HIT_C + 2] = ls[8], ls[9], ls[10]
+    else:
+        c = ls[1] * x + ls[2] * y + ls[3] * z + ls[4]
+        u = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else 0.5
+        i, w = lut_pos(lut, min(max(u, 0.0), 1.0))
+        for k in range(3):
+            st[HIT_C + k] = lut[i, k] * (1.0 - w) + lut[i + 1, k] * w
+    if st[4] == BG_DEPTH:
+        st[4] = t
+
+
+@njit(**_hot)
+def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
+    """Blinn-Phong at the hit in st (see surface_hit) for the world ray o + t d: the normal is
+    the index-space gradient through M (world -> index) transposed, turned to face the viewer;
+    par[9:13] = (ambient, diffuse, specular, shininess) (the render settings). Adds T x colour and
+    makes the ray opaque."""
+    gx, gy, gz = st[HIT_G], st[HIT_G + 1], st[HIT_G + 2]
+    nx = M[0, 0] * gx + M[1, 0] * gy + M[2, 0] * gz
+    ny = M[0, 1] * gx + M[1, 1] * gy + M[2, 1] * gz
+    nz = M[0, 2] * gx + M[1, 2] * gy + M[2, 2] * gz
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if nn > 0.0:
+        nx, ny, nz = nx / nn, ny / nn, nz / nn
+    else:
+        nx, ny, nz = -dx, -dy, -dz
+    if nx * dx + ny * dy + nz * dz > 0.0:
+        nx, ny, nz = -nx, -ny, -nz
+    t = st[HIT_T]
+    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    ka, kd, ks, sh = par[9], par[10], par[11], par[12]
+    r = ka * st[HIT_C]
+    g = ka * st[HIT_C + 1]
+    b = ka * st[HIT_C + 2]
+    for k in range(lights.shape[0]):
+        kind = lights[k, 0]
+        er, eg, eb = lights[k, 4], lights[k, 5], lights[k, 6]
+        if kind == 1.0:  # point: towards it, falling off as 1 / r^2
+            lx, ly, lz = lights[k, 1] - px, lights[k, 2] - py, lights[k, 3] - pz
+            d2 = lx * lx + ly * ly + lz * lz
+            if not d2 > 0.0:
+                continue
+            dl = math.sqrt(d2)
+            lx, ly, lz = lx / dl, ly / dl, lz / dl
+            er, eg, eb = er / d2, eg / d2, eb / d2
+        elif kind == 0.0:  # sun: against its travel direction
+            lx, ly, lz = -lights[k, 1], -lights[k, 2], -lights[k, 3]
+        else:  # headlight
+            lx, ly, lz = -dx, -dy, -dz
+        ndl = nx * lx + ny * ly + nz * lz
+        if ndl <= 0.0:
+            continue
+        hx, hy, hz = lx - dx, ly - dy, lz - dz
+        hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+        spec = 0.0
+        if hn > 0.0 and ks > 0.0:
+            ndh = max(nx * hx + ny * hy + nz * hz, 0.0) / hn
+            spec = ks * ndh ** sh
+        r += er * (kd * ndl * st[HIT_C] + spec)
+        g += eg * (kd * ndl * st[HIT_C + 1] + spec)
+        b += eb * (kd * ndl * st[HIT_C + 2] + spec)
+    T = st[0]
+    st[1] += T * r
+    st[2] += T * g
+    st[3] += T * b
+    st[0] = 0.0
+
+
+@njit(**_hot, inline="always")
+def brick_xyz(cxyz, x, y, z):
+    """Index point -> coordinates in its leaf's 10^3 brick (apron of one voxel), clamped."""
+    fx = min(max(x - (cxyz[0] * 8 - 1), 0.0), 8.999999)
+    fy = min(max(y - (cxyz[1] * 8 - 1), 0.0), 8.999999)
+    fz = min(max(z - (cxyz[2] * 8 - 1), 0.0), 8.999999)
+    return fx, fy, fz
+
+
+@njit(**_hot)
+def trilinear(B, fx, fy, fz):
+    i0, j0, k0 = int(fx), int(fy), int(fz)
+    ax, ay, az = fx - i0, fy - j0, fz - k0
+    c00 = B[i0, j0, k0] * (1 - ax) + B[i0 + 1, j0, k0] * ax
+    c10 = B[i0, j0 + 1, k0] * (1 - ax) + B[i0 + 1, j0 + 1, k0] * ax
+    c01 = B[i0, j0, k0 + 1] * (1 - ax) + B[i0 + 1, j0, k0 + 1] * ax
+    c11 = B[i0, j0 + 1, k0 + 1] * (1 - ax) + B[i0 + 1, j0 + 1, k0 + 1] * ax
+    return (c00 * (1 - ay) + c10 * ay) * (1 - az) + (c01 * (1 - ay) + c11 * ay) * az
+
+
+@njit(**_hot)
+def trilinear_grad(B, fx, fy, fz):
+    """The gradient (per index unit) of the brick's values at a point: the voxels' central
+    differences (one-sided at the brick's edge), interpolated trilinearly; smoother than the
+    interpolant's own, piecewise, gradient."""
+    i0, j0, k0 = int(fx), int(fy), int(fz)
+    ax, ay, az = fx - i0, fy - j0, fz - k0
+    n = B.shape[0] - 1
+    gx = gy = gz = 0.0
+    for di in range(2):
+        i = i0 + di
+        wx = ax if di else 1.0 - ax
+        for dj in range(2):
+            j = j0 + dj
+            wy = ay if dj else 1.0 - ay
+            for dk in range(2):
+                k = k0 + dk
+                w = wx * wy * (az if dk else 1.0 - az)
+                ia, ib = max(i - 1, 0), min(i + 1, n)
+                ja, jb = max(j - 1, 0), min(j + 1, n)
+                ka, kb = max(k - 1, 0), min(k + 1, n)
+                gx += w * (B[ib, j, k] - B[ia, j, k]) / (ib - ia)
+                gy += w * (B[i, jb, k] - B[i, ja, k]) / (jb - ja)
+                gz += w * (B[i, j, kb] - B[i, j, ka]) / (kb - ka)
+    return gx, gy, gz
+
+
+@njit(**_hot)
+def sdf_crossing(sprev, ob, phi, t, p0, h, ro, rd, B, cxyz):
+    """Object ob's signed distance phi at sample t: the hit t where it first turns <= 0 after a
+    positive sample (bisection in this leaf's brick over [max(previous t, p0 - h), t]); t = p0
+    when its first sample is already inside; else INF. Records the sample in sprev."""
+    tp = sprev[ob, 1]
+    pp = sprev[ob, 0]
+    sprev[ob, 0] = phi
+    sprev[ob, 1] = t
+    if phi > 0.0:
+        return INF
+    if tp != tp:
+        return p0
+    if not pp > 0.0:
+        return INF  # already inside (behind a hit that was ignored): no new crossing
+    lo = max(tp, p0 - h)
+    hi = t
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        fx, fy, fz = brick_xyz(cxyz, ro[ob, 0] + mid * rd[ob, 0], ro[ob, 1] + mid * rd[ob, 1],
+                               ro[ob, 2] + mid * rd[ob, 2])
+        if trilinear(B, fx, fy, fz) > 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+NORMAL_BLUR = 1.0  # field surfaces: variance (voxels^2) of the blur under the normal
+NORMAL_REACH = 4.0  # voxels around the hit searched for Gaussians
+
+
+@njit(**_hot)
+def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_start, cell_items,
+                   g_rec):
+    """The outward normal at a field-mode surface hit (st, see surface_hit): -grad of the
+    object's mixture blurred by a Gaussian of variance NORMAL_BLUR (each sigma^2 grows by it),
+    summed over the Gaussians centred in the leaf cells within NORMAL_REACH of the hit (each is
+    listed in the cell of its centre, among others). The blur evens out the lattice of
+    voxel-sized Gaussians the shell is made of."""
+    ob = int(st[HIT_OB])
+    t = st[HIT_T]
+    x = ro[ob, 0] + t * rd[ob, 0]
+    y = ro[ob, 1] + t * rd[ob, 1]
+    z = ro[ob, 2] + t * rd[ob, 2]
+    lo0 = int(math.floor((x + 0.5 - NORMAL_REACH) / LEAF))
+    lo1 = int(math.floor((y + 0.5 - NORMAL_REACH) / LEAF))
+    lo2 = int(math.floor((z + 0.5 - NORMAL_REACH) / LEAF))
+    hi0 = int(math.floor((x + 0.5 + NORMAL_REACH) / LEAF))
+    hi1 = int(math.floor((y + 0.5 + NORMAL_REACH) / LEAF))
+    hi2 = int(math.floor((z + 0.5 + NORMAL_REACH) / LEAF))
+    nm = nmin[ob]
+    nd = ndims[ob]
+    gx = gy = gz = 0.0
+    for cx in range(lo0, hi0 + 1):
+        for cy in range(lo1, hi1 + 1):
+            for cz in range(lo2, hi2 + 1):
+                nx, ny, nz = cx // NL, cy // NL, cz // NL
+                if (nx < nm[0] or ny < nm[1] or nz < nm[2] or nx >= nm[0] + nd[0]
+                        or ny >= nm[1] + nd[1] or nz >= nm[2] + nd[2]):
+                    continue
+                nid = node_table[noff[ob] + ((nx - nm[0]) * nd[1] + (ny - nm[1])) * nd[2] + (nz - nm[2])]
+                if nid < 0:
+                    continue
+                cid = node_cells[nid, ((cx - nx * NL) * NL + (cy - ny * NL)) * NL + (cz - nz * NL)]
+                if cid < 0:
+                    continue
+                for j in range(cell_start[cid], cell_start[cid + 1]):
+                    g = cell_items[j]
+                    if (math.floor((g_rec[g, 0] + 0.5) / LEAF) != cx
+                            or math.floor((g_rec[g, 1] + 0.5) / LEAF) != cy
+                            or math.floor((g_rec[g, 2] + 0.5) / LEAF) != cz):
+                        continue  # counted in the cell of its centre
+                    w = g_rec[g, 6]
+                    if w == 0.0:
+                        continue
+                    ix = 1.0 / math.sqrt(1.0 / g_rec[g, 3] ** 2 + NORMAL_BLUR)
+                    iy = 1.0 / math.sqrt(1.0 / g_rec[g, 4] ** 2 + NORMAL_BLUR)
+                    iz = 1.0 / math.sqrt(1.0 / g_rec[g, 5] ** 2 + NORMAL_BLUR)
+                    ux = (x - g_rec[g, 0]) * ix
+                    uy = (y - g_rec[g, 1]) * iy
+                    uz = (z - g_rec[g, 2]) * iz
+                    q = ux * ux + uy * uy + uz * uz
+                    if q > 16.0:
+                        continue
+                    e = w * ix * iy * iz / (g_rec[g, 3] * g_rec[g, 4] * g_rec[g, 5]) * math.exp(-0.5 * q)
+                    gx += e * ux * ix
+                    gy += e * uy * iy
+                    gz += e * uz * iz
+    st[HIT_G] = gx
+    st[HIT_G + 1] = gy
+    st[HIT_G + 2] = gz
+    st[8] = 1.0
