@@ -121,7 +121,7 @@ def build_scene(bpy, objs, args, box=None):
         o.gaussvdb.render_lod = args.lod
         o.gaussvdb.viewport_lod = args.lod
         o.gaussvdb.clip_collection = clips
-        o.gaussvdb.level_set_style = args.level_set.upper()
+        o.gaussvdb.level_set_style = getattr(args, "level_set", "surface").upper()
     return scene
 
 
@@ -130,17 +130,18 @@ def clip_collection(bpy, scene, args):
     is the normal; a box: a Cube Empty scaled to the half extents), or None."""
     import mathutils
 
-    if not (args.clip_plane or args.clip_box):
+    planes, boxes = getattr(args, "clip_plane", None) or [], getattr(args, "clip_box", None) or []
+    if not (planes or boxes):
         return None
     coll = bpy.data.collections.new("GaussVDB Clip")
     scene.collection.children.link(coll)
-    for k, (p, n) in enumerate(args.clip_plane):
+    for k, (p, n) in enumerate(planes):
         e = bpy.data.objects.new(f"Clip Plane {k + 1}", None)
         e.empty_display_type = "SINGLE_ARROW"
         rot = mathutils.Vector(n).normalized().to_track_quat("Z", "Y")
         e.matrix_world = mathutils.Matrix.LocRotScale(mathutils.Vector(p), rot, None)
         coll.objects.link(e)
-    for k, (lo, hi) in enumerate(args.clip_box):
+    for k, (lo, hi) in enumerate(boxes):
         e = bpy.data.objects.new(f"Clip Box {k + 1}", None)
         e.empty_display_type = "CUBE"
         e.location = [0.5 * (a + b) for a, b in zip(lo, hi)]
