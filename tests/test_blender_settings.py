@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 from conftest import ADDON_MODULE
-from test_engine_helpers import add_camera, lattice, make_object, setup_render
+from test_engine_helpers import add_camera, lattice, make_object, read_image, setup_render
 
 W, H = 32, 24
 
@@ -30,15 +30,6 @@ def _cloud(bpy, scene):
 def _sync(bpy, scene):
     ss = _mod("gaussvdb_addon.scene_sync").SceneSync(viewport=False)
     return ss.sync(bpy.context.evaluated_depsgraph_get())
-
-
-def _read_exr(bpy, path):
-    img = bpy.data.images.load(path)
-    w, h = img.size
-    px = np.empty(w * h * 4, np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px.reshape(h, w, 4)
 
 
 def _exr_channels(bpy, path):
@@ -119,7 +110,7 @@ def _background_pixel(bpy, scene, tmp_path, name):
     fr = _mod("gaussvdb_addon.final_render")
     path = str(tmp_path / f"{name}.exr")
     fr.render_scene_to_file(scene, path)
-    return _read_exr(bpy, path)[0, 0]
+    return read_image(bpy, path)[0, 0]
 
 
 def test_background_from_the_world(bpy_module, scene, tmp_path):

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 from conftest import ROOT, SAMPLE, run_cli
-from test_engine_helpers import lattice, make_object
+from test_engine_helpers import lattice, make_object, read_image
 
 
 def _mod(name):
@@ -80,11 +80,7 @@ def _render(tmp_path, name, *extra):
 
 
 def _alpha(bpy, path):
-    img = bpy.data.images.load(str(path))
-    px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px.reshape(-1, 4)[:, 3]
+    return read_image(bpy, path).reshape(-1, 4)[:, 3]
 
 
 def test_cli_clip_options(bpy_module, tmp_path):

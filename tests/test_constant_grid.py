@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from test_engine_helpers import add_camera, setup_render
+from test_engine_helpers import add_camera, read_image, setup_render
 from vdb_fixtures import openvdb, write_constant_fog
 
 N = 24  # voxels per side: 3 x 3 x 3 leaves
@@ -50,11 +50,7 @@ def _render(bpy, scene, path, mode, out):
     scene.render.threads_mode, scene.render.threads = "FIXED", 1
     scene.render.film_transparent = True
     stats = final_render.render_scene_to_file(scene, str(out))
-    img = bpy.data.images.load(str(out))
-    px = np.empty(W * H * 4, np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px.reshape(H, W, 4), stats
+    return read_image(bpy, out), stats
 
 
 @pytest.mark.parametrize("layout,value", [("tiles", 0.5), ("tiles", 1.0), ("leaves", 0.5)])

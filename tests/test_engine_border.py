@@ -3,7 +3,7 @@ through the GAUSSVDB engine in real Blender."""
 
 import numpy as np
 import pytest
-from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, setup_render
+from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, read_image, setup_render
 
 W, H = 90, 60
 
@@ -27,12 +27,7 @@ def _render_exr(bpy, scene, path):
     from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
 
     final_render.render_scene_to_file(scene, str(path))
-    img = bpy.data.images.load(str(path))
-    w, h = img.size
-    px = np.empty(w * h * 4, np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px.reshape(h, w, 4)
+    return read_image(bpy, path)
 
 
 @pytest.mark.parametrize("crop", [True, False])

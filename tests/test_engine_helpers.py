@@ -58,6 +58,16 @@ def add_camera(bpy, scene, location, rotation, *, ortho_scale=None, lens=50.0):
     return ob
 
 
+def read_image(bpy, path):
+    """The pixels of an image file Blender reads: float32 (H, W, 4), row 0 = bottom."""
+    img = bpy.data.images.load(str(path))
+    w, h = img.size
+    px = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(px)
+    bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)
+
+
 def setup_render(scene, width, height, engine="GAUSSVDB"):
     scene.render.engine = engine
     scene.render.resolution_x = width

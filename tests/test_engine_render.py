@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 import pytest
-from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, setup_render
+from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, read_image, setup_render
 
 W, H = 64, 32
 
@@ -26,15 +26,6 @@ def _ramp_scene(bpy, scene):
     scene.render.film_transparent = False
 
 
-def _read_png(bpy, path):
-    img = bpy.data.images.load(path)
-    w, h = img.size
-    px = np.empty(w * h * 4, np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px.reshape(h, w, 4)
-
-
 def test_ramp_png_matches_colormap_table(bpy_module, scene, tmp_path):
     from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
     from bl_ext.user_default.gaussvdb.kernels.render.colormaps import colormap
@@ -46,7 +37,7 @@ def test_ramp_png_matches_colormap_table(bpy_module, scene, tmp_path):
     stats = final_render.render_scene_to_file(scene, path)
     assert os.path.isfile(path)
     assert stats["gaussians"] == 64 * 4 * 32 and stats["width"] == W
-    px = _read_png(bpy, path)  # 8-bit values / 255, row 0 = bottom
+    px = read_image(bpy, path)  # 8-bit values / 255, row 0 = bottom
     tab = colormap("viridis").astype(np.float64)
     cols = np.arange(4, W - 4)
     expect = np.stack([np.interp(cols / 63.0 * 255.0, np.arange(256), tab[:, k]) for k in range(3)], 1)
@@ -78,7 +69,7 @@ def test_write_still_and_passes(bpy_module, scene, tmp_path):
     scene.render.filepath = str(tmp_path / "still.png")
     scene.render.use_file_extension = False
     bpy.ops.render.render(write_still=True)
-    px = _read_png(bpy, str(tmp_path / "still.png"))
+    px = read_image(bpy, str(tmp_path / "still.png"))
     assert px.shape == (H, W, 4)
     assert px[H // 2, W // 2, 3] > 0.99  # the opaque slab
     rr = bpy.data.images["Render Result"]

@@ -134,11 +134,9 @@ def _render_alpha(bpy, tmp_path, size, unit=None):
         scene.gaussvdb.density_unit = unit
     path = str(tmp_path / f"size{size}_{unit}.exr")
     fr.render_scene_to_file(scene, path)
-    img = bpy.data.images.load(path)
-    px = np.empty(len(img.pixels), np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px.reshape(30, 40, 4)[..., 3]
+    from test_engine_helpers import read_image
+
+    return read_image(bpy, path)[..., 3]
 
 
 def _scale(s):

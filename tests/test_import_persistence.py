@@ -124,11 +124,9 @@ def test_undo_removes_the_import_in_one_step(scene, bpy_module):
 def _render(bpy, scene, path):
     final_render = importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.final_render")
     final_render.render_scene_to_file(scene, path)
-    img = bpy.data.images.load(path)
-    px = np.empty(len(img.pixels), np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px
+    from test_engine_helpers import read_image
+
+    return read_image(bpy, path).reshape(-1)
 
 
 def test_reloaded_file_renders_the_same_image(scene, bpy_module, tmp_path):

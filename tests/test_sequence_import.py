@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 import pytest
-from test_engine_helpers import add_camera, setup_render
+from test_engine_helpers import add_camera, read_image, setup_render
 from vdb_fixtures import write_grid
 
 PKG = "bl_ext.user_default.gaussvdb"
@@ -229,11 +229,7 @@ def _camera_scene(bpy, scene):
 
 
 def _png(bpy, path):
-    img = bpy.data.images.load(path)
-    px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    return px
+    return read_image(bpy, path).reshape(-1)
 
 
 def test_animation_render_equals_single_file_renders_and_survives_reopen(bpy_module, scene, frames,

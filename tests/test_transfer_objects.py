@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 from conftest import ADDON_MODULE, ROOT, SAMPLE
-from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, setup_render
+from test_engine_helpers import FakeEngine, add_camera, lattice, make_object, read_image, setup_render
 from vdb_fixtures import write_grid
 
 W, H = 64, 32
@@ -267,11 +267,8 @@ def test_cli_legend_and_log_warning(tmp_path):
         in proc.stderr
     import bpy
 
-    img = bpy.data.images.load(str(out))
-    px = np.empty(160 * 120 * 4, np.float32)
-    img.pixels.foreach_get(px)
-    bpy.data.images.remove(img)
-    px = px.reshape(120, 160, 4)
+    px = read_image(bpy, out)
+    assert px.shape == (120, 160, 4)
     corner = px[:60, 80:]  # bottom right, the default corner
     assert np.all(corner > 0.99, axis=-1).sum() > 50
     assert not np.all(px[60:, :80] > 0.99, axis=-1).any()  # no legend elsewhere
