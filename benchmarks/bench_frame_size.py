@@ -21,7 +21,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from types import SimpleNamespace
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path[:0] = [ROOT, os.path.join(ROOT, "tools")]
@@ -74,8 +73,7 @@ def main(argv=None):
         for mode in a.modes.split(","):
             res = {}
             for w, h in a.sizes:
-                args = SimpleNamespace(width=w, height=h, mode=mode, colormap="viridis", threads=0,
-                                       density=None, transparent=False, lod=a.lod)
+                args = cmd_render.options(width=w, height=h, mode=mode, lod=a.lod)
                 scene = cmd_render.build_scene(bpy, objs, args)
                 out = os.path.join(tmp, f"{mode}_{w}x{h}.png")
                 f12 = []

@@ -5,7 +5,6 @@ is a Blender file path, and the first use says that it compiles and keeps that t
 import importlib
 import os
 import shutil
-import types
 
 import numpy as np
 import pytest
@@ -127,8 +126,7 @@ def _render_alpha(bpy, tmp_path, size, unit=None):
     scale = size / bs.world_box_diagonal(obj, obj.matrix_world)
     obj.matrix_world = obj.matrix_world @ _scale(scale)
     bpy.context.view_layer.update()
-    args = types.SimpleNamespace(width=40, height=30, mode="particles", colormap="viridis",
-                                 transparent=True, threads=0, density=None, lod="low")
+    args = cmd_render.options(width=40, height=30, transparent=True, lod="low")
     scene = cmd_render.build_scene(bpy, [obj], args)
     if unit is not None:
         scene.gaussvdb.density_unit = unit

@@ -131,7 +131,6 @@ def _render(bpy, scene, path):
 
 def test_reloaded_file_renders_the_same_image(scene, bpy_module, tmp_path):
     """The engine renders the same pixels from the saved-and-reopened .blend."""
-    import types
 
     bpy = bpy_module
     from tools import cmd_render
@@ -139,8 +138,7 @@ def test_reloaded_file_renders_the_same_image(scene, bpy_module, tmp_path):
     imp = _imp()
     objs = imp.import_vdb(SAMPLE, grids=["density"], lods=("low", "medium"), compute_error=False,
                           collection=scene.collection)
-    args = types.SimpleNamespace(width=48, height=36, mode="particles", colormap="viridis",
-                                 transparent=False, threads=0, density=None, lod="medium")
+    args = cmd_render.options(width=48, height=36, lod="medium")
     scene = cmd_render.build_scene(bpy, objs, args)
     first = _render(bpy, scene, str(tmp_path / "before.png"))
     assert first.reshape(-1, 4)[:, :3].max() > 0.05  # something was drawn

@@ -56,8 +56,7 @@ def render_pngs(bpy, objs, args) -> list:
     for other in objs[1:]:
         other.hide_render = True
     width, height = args.size
-    opts = argparse.Namespace(width=width, height=height, transparent=False, mode="particles",
-                              colormap="viridis", threads=0, density=None, lod=obj.gaussvdb.render_lod)
+    opts = cmd_render.options(width=width, height=height, lod=obj.gaussvdb.render_lod)
     scene = cmd_render.build_scene(bpy, [obj], opts)
     os.makedirs(args.out, exist_ok=True)
     # Warm-up at a tiny size: the first render loads (or, on a first run, compiles) the kernels.

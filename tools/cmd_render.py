@@ -68,6 +68,15 @@ def parse(argv):
     return a
 
 
+def options(**overrides):
+    """The render options with the command line's defaults, for callers that set up a scene
+    without one (the demo, benchmarks, tests): e.g. options(width=48, height=36, lod="low")."""
+    a = parse(["-"])
+    for k, v in overrides.items():
+        setattr(a, k, v)
+    return a
+
+
 def world_box(obj):
     import numpy as np
 
@@ -109,8 +118,8 @@ def build_scene(bpy, objs, args, box=None):
     s = scene.gaussvdb
     s.mode = args.mode.upper()
     s.colormap = args.colormap
-    s.show_legend = bool(getattr(args, "legend", False))
-    s.log_scale = bool(getattr(args, "log_scale", False))
+    s.show_legend = bool(args.legend)
+    s.log_scale = bool(args.log_scale)
     if args.threads:
         r.threads_mode, r.threads = "FIXED", args.threads
     if args.density is not None:
@@ -121,7 +130,7 @@ def build_scene(bpy, objs, args, box=None):
         o.gaussvdb.render_lod = args.lod
         o.gaussvdb.viewport_lod = args.lod
         o.gaussvdb.clip_collection = clips
-        o.gaussvdb.level_set_style = getattr(args, "level_set", "surface").upper()
+        o.gaussvdb.level_set_style = args.level_set.upper()
     return scene
 
 
@@ -130,7 +139,7 @@ def clip_collection(bpy, scene, args):
     is the normal; a box: a Cube Empty scaled to the half extents), or None."""
     import mathutils
 
-    planes, boxes = getattr(args, "clip_plane", None) or [], getattr(args, "clip_box", None) or []
+    planes, boxes = args.clip_plane, args.clip_box
     if not (planes or boxes):
         return None
     coll = bpy.data.collections.new("GaussVDB Clip")
