@@ -42,7 +42,7 @@ def frame(dev, scene, cam, tf, repeat):
         t0 = time.perf_counter()
         out = dev.render(scene, cam, tf)
         best = min(best, time.perf_counter() - t0)
-    t_start = dev._frame.args[-3]  # the frame's screen-tile list starts (see _build_frame)
+    t_start = dev._frame.accel.t_start  # the frame's screen-tile list starts (packing.Accel)
     entries = int(t_start[-1]) if t_start.shape[0] > 1 else 0
     return best, entries, out
 

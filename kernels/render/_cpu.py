@@ -2,8 +2,9 @@
 numba cache directory can be chosen first. Every pixel is computed independently, in float64,
 so images are bitwise identical for any thread count.
 
-Modes: 0 particles, 1 field (_cpu_gauss), 2 paper, 3 reference (here); level-set surfaces in
-_cpu_surface.
+Modes (scene.Mode): particles, field (_cpu_gauss), paper, reference (here); level-set surfaces
+in _cpu_surface. The arguments come grouped as packing's named tuples (gauss: Gaussians,
+objs: Objects, accel: Accel, xfer: Transfer, out: Output, scr: Scratch, hits: Hits).
 """
 from __future__ import annotations
 
@@ -33,6 +34,8 @@ from ._cpu_math import (
 from ._cpu_surface import brick_xyz, mixture_normal, sdf_crossing, shade_hit, surface_hit, trilinear_grad
 from ._cpu_tiles import TILE
 from ._cpu_walk import clip_interval, walk_object
+from .packing import Hits, Scratch
+from .scene import Mode
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
 __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
@@ -232,12 +235,12 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
 
 
 @njit(**_hot)
-def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj,
-                 cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col, g_val, g_obj,
-                 g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz, obj_kind, obj_tf, obj_ls,
-                 tf_lut, tf_par, samp, acc, rclip, sprev):
-    """paper (mode 2) / reference (mode 3): piece by piece over the covering leaves."""
-    npieces = n if n_obj == 1 else merged_pieces(n, iv_ta, iv_tb, srt, bnd)
+def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
+    """paper / reference: piece by piece over the covering leaves."""
+    n_obj = objs.w2i.shape[0]
+    iv_ta, iv_tb, srt, act_iv = scr.iv_ta, scr.iv_tb, scr.srt, scr.act_iv
+    cov_obj, cov_cell = scr.cov_obj, scr.cov_cell
+    npieces = n if n_obj == 1 else merged_pieces(n, iv_ta, iv_tb, srt, scr.bnd)
     ptr = 0
     nactiv = 0
     for pi in range(npieces):
@@ -245,11 +248,11 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
             p0 = iv_ta[pi]
             p1 = iv_tb[pi]
             ncov = 1
-            cov_obj[0] = iv_obj[pi]
-            cov_cell[0] = iv_cell[pi]
+            cov_obj[0] = scr.iv_obj[pi]
+            cov_cell[0] = scr.iv_cell[pi]
         else:
-            p0 = bnd[pi]
-            p1 = bnd[pi + 1]
+            p0 = scr.bnd[pi]
+            p1 = scr.bnd[pi + 1]
             if not p1 > p0:
                 continue
             q = 0
@@ -267,74 +270,64 @@ def trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, ac
                 ptr += 1
             ncov = 0
             for q in range(nactiv):
-                cov_obj[ncov] = iv_obj[act_iv[q]]
-                cov_cell[ncov] = iv_cell[act_iv[q]]
+                cov_obj[ncov] = scr.iv_obj[act_iv[q]]
+                cov_cell[ncov] = scr.iv_cell[act_iv[q]]
                 ncov += 1
             if ncov == 0:
                 continue
-        if mode == 2:
-            paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu,
-                        g_inv, g_w, g_col, g_val, g_obj, g_volfac, k2, nsteps, maxd, rclip)
+        if mode == Mode.PAPER:
+            paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, scr.ro, scr.rd, accel.cell_start,
+                        accel.cell_items, gauss.mu, gauss.inv, gauss.w, gauss.col, gauss.val,
+                        gauss.obj, gauss.volfac, k2, nsteps, maxd, scr.rclip)
             if st[10] >= maxd:
                 return
         else:
-            reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                            obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev)
+            reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, scr.ro, scr.rd, objs.step,
+                            accel.bricks, accel.cell_xyz, objs.kind, objs.tf, objs.ls, xfer.lut,
+                            xfer.par, scr.samp, scr.acc, scr.sprev)
         if st[0] < st[9] or st[8] > 0.0:
             return
 
 
 @njit(**_hot)
-def trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
-               cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo,
-               g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc,
-               Hs, hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev):
+def trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
-    argsort_small(iv_ta, srt, n)  # by entry time (one object: already in order)
-    return trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start,
-                       cell_items, face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val,
-                       g_obj, g_clo, g_chi, k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls,
-                       tf_lut, tf_par, lastc, Hs, hid, ev_t, ev_k, ev_h, act, mem, svals,
-                       sact, samp, acc, cb, qs, fs, rclip, sprev)
+    argsort_small(scr.iv_ta, scr.srt, n)  # by entry time (one object: already in order)
+    return trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max)
 
 
 @njit(**_jit)
 def ray_scratch(cap):
-    """Per-ray hit arrays for trace_gauss, room for cap hits: records, ids, the entry queue
-    (times, keys, hits), the active set (field; particles: the members carried over), the
-    interval's members (particles)."""
-    return (np.empty((cap, NF)), np.empty(cap, np.int64), np.empty(cap), np.empty(cap, np.int64),
-            np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64))
+    """Per-ray hit arrays for trace_gauss, room for cap hits (packing.Hits)."""
+    return Hits(np.empty((cap, NF)), np.empty(cap, np.int64), np.empty(cap), np.empty(cap, np.int64),
+                np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64))
 
 
 @njit(**_hot)
-def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
-                  cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w,
-                  g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks,
-                  cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings,
-                  max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value, out_segs, iv_ta,
-                  iv_tb, iv_obj, iv_cell, srt, bnd, act_iv, cov_obj, cov_cell, ro, rd, lastc, svals,
-                  sact, samp, acc, cb, st, qs, fs, Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk,
-                  rclip, sprev):
+def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out, scr, hits):
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0) and image columns
     [c0, c1) (output column i - c0), tile by tile (see render_band); no allocation, no reference
-    counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than Hs
-    has. Rays run over [clip start, clip end] along the view axis (cam[19:21]); each object's part
-    of a ray is further cut to its clip half-spaces obj_clip[ob] (rclip[ob], clip.py)."""
+    counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than
+    hits has. Rays run over [clip start, clip end] along the view axis (cam[19:21]); each object's
+    part of a ray is further cut to its clip half-spaces objs.clip[ob] (scr.rclip[ob], clip.py)."""
     W = int(cam[1])
     Hh = int(cam[2])
     ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
     clip0, clip1 = cam[19], cam[20]
+    w2i = objs.w2i
     n_obj = w2i.shape[0]
+    settings = xfer.settings
     tmin_T = settings[0]
     tau_max = settings[1]
     k2 = settings[2] * settings[2]
     bgr, bgg, bgb, bga = settings[3], settings[4], settings[5], settings[6]
     nsteps = int(settings[7])
     maxd = settings[8]
-    tiled = mode <= 1 and t_start.shape[0] > 1
+    t_start = accel.t_start
+    tiled = mode <= Mode.FIELD and t_start.shape[0] > 1
     ntx = (W + TILE - 1) // TILE
     w0 = min(c1, (c0 // TILE + 1) * TILE) - c0  # the first tile column's part of [c0, c1)
+    st, ro, rd, rclip, sprev = scr.st, scr.ro, scr.rd, scr.rclip, scr.sprev
     for p in range(p0, nr * (c1 - c0)):
         if p < nr * w0:
             x0, tw, q = c0, w0, p
@@ -374,12 +367,13 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
             dz = M[2, 0] * dwx + M[2, 1] * dwy + M[2, 2] * dwz
             ro[ob, 0], ro[ob, 1], ro[ob, 2] = ox, oy, oz
             rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
-            rclip[ob, 0], rclip[ob, 1] = clip_interval(obj_clip[ob], owx, owy, owz, dwx, dwy, dwz)
+            rclip[ob, 0], rclip[ob, 1] = clip_interval(objs.clip[ob], owx, owy, owz, dwx, dwy, dwz)
             if not tiled:
                 n = walk_object(ox, oy, oz, dx, dy, dz, max(tn, rclip[ob, 0]),
-                                min(tf, rclip[ob, 1]), nmin[ob], ndims[ob], noff[ob],
-                                node_table, node_cells, cell_skip, ob, iv_ta, iv_tb, iv_obj,
-                                iv_cell, n, max_walk)
+                                min(tf, rclip[ob, 1]), accel.node_min[ob], accel.node_dims[ob],
+                                accel.node_off[ob], accel.node_table, accel.node_cells,
+                                accel.cell_skip, ob, scr.iv_ta, scr.iv_tb, scr.iv_obj, scr.iv_cell,
+                                n, accel.max_walk)
         st[0] = 1.0
         st[1] = 0.0
         st[2] = 0.0
@@ -397,112 +391,68 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, no
             sprev[ob, 1] = np.nan
         if n == 0:
             pass
-        elif mode >= 2:
-            trace_pieces(mode, st, n, n_obj, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
-                         cov_obj, cov_cell, ro, rd, cell_start, cell_items, g_mu, g_inv, g_w, g_col,
-                         g_val, g_obj, g_volfac, k2, nsteps, maxd, obj_step, bricks, cell_xyz,
-                         obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, rclip, sprev)
+        elif mode >= Mode.PAPER:
+            trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd)
         else:
             if tiled:
-                rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], t_items, t_mask,
-                                 ro, rd, g_rec, g_col, g_val, g_obj, k2, tn, tf, tau_max, obj_step,
-                                 obj_kind, obj_tf, obj_ls, tf_lut, tf_par, Hs, hid, ev_t, ev_k,
-                                 ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk,
-                                 rclip, sprev)
+                rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], gauss, objs, accel,
+                                 xfer, scr, hits, k2, tn, tf, tau_max)
             else:
-                rc = trace_walk(mode, st, n, n_obj, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz,
-                                cell_start, cell_items, face_start, face_items, g_rec, g_sph,
-                                obj_ref, g_col, g_val, g_obj, g_clo, g_chi, k2, tn, tf, tau_max,
-                                obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, Hs, hid, ev_t,
-                                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev)
+                rc = trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max)
             if rc == OVERFLOW:
                 return p
         if st[8] == 2.0:
-            mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_start,
-                           cell_items, g_rec)
+            mixture_normal(st, ro, rd, accel.node_min, accel.node_dims, accel.node_off, accel.node_table,
+                           accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec)
         if st[8] > 0.0:
-            shade_hit(st, w2i[int(st[HIT_OB])], lights, settings, owx, owy, owz, dwx, dwy, dwz)
-        T = st[0]
+            shade_hit(st, w2i[int(st[HIT_OB])], xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
+        Tr = st[0]
         io = i - c0
-        out_rgba[jr, io, 0] = st[1] + T * bgr * bga
-        out_rgba[jr, io, 1] = st[2] + T * bgg * bga
-        out_rgba[jr, io, 2] = st[3] + T * bgb * bga
-        out_rgba[jr, io, 3] = (1.0 - T) + T * bga
-        out_depth[jr, io] = st[4]
-        out_value[jr, io] = st[5] / st[6] if st[6] > 0.0 else 0.0
-        out_segs[jr] += st[7]
+        out.rgba[jr, io, 0] = st[1] + Tr * bgr * bga
+        out.rgba[jr, io, 1] = st[2] + Tr * bgg * bga
+        out.rgba[jr, io, 2] = st[3] + Tr * bgb * bga
+        out.rgba[jr, io, 3] = (1.0 - Tr) + Tr * bga
+        out.depth[jr, io] = st[4]
+        out.value[jr, io] = st[5] / st[6] if st[6] > 0.0 else 0.0
+        out.segs[jr] += st[7]
     return -1
 
 
 @njit(**_jit)
-def render_band(jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells, cell_skip,
-                cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
-                g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings, max_walk, t_start,
-                t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
+def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
     """nr image rows from j0 (output rows from jr0), columns [c0, c1), within one row of screen
-    tiles, one tile after
-    the other, so a tile's candidate list and the Gaussians it names stay in cache for its pixels
-    (row by row, a 512-wide image cycles through 64 tiles' lists). The scratch arrays, then
-    render_pixels (grown and resumed when a ray needs more hit rows). Kept out of render_rows'
-    prange body on purpose: per-pixel calls made from inside a parfor body with many array
-    arguments measured ~18 us each here."""
-    n_obj = w2i.shape[0]
-    iv_ta = np.empty(max_walk)
-    iv_tb = np.empty(max_walk)
-    iv_obj = np.empty(max_walk, np.int32)
-    iv_cell = np.empty(max_walk, np.int32)
-    srt = np.empty(max_walk, np.int64)
-    bnd = np.empty(2 * max_walk)
-    act_iv = np.empty(max_walk, np.int64)
-    cov_obj = np.empty(max_walk, np.int32)
-    cov_cell = np.empty(max_walk, np.int32)
-    ro = np.empty((n_obj, 3))
-    rd = np.empty((n_obj, 3))
-    lastc = np.empty((n_obj, 3), np.int64)
-    svals = np.empty(n_obj)
-    sact = np.empty(n_obj, np.int64)
-    samp = np.empty(5)
-    acc = np.empty(6)  # one sample's sums (add_sample)
-    cb = np.empty(6)  # particles: colour bounds of an interval's members
-    st = np.empty(NST)
-    qs = np.empty(6, np.int64)  # sweep state (_cpu_gauss)
-    fs = np.empty(5)
-    cand = np.empty(NB, np.int64)  # trace_tiles' candidate block and its tests
-    blk = np.empty((NB, 8))
-    rclip = np.empty((n_obj, 2))  # this ray's clip interval per object
-    sprev = np.empty((n_obj, 2))  # surfaces: each object's previous sample (value, t or index)
-    # per-ray hit scratch (particles/field), grown on demand
+    tiles, one tile after the other, so a tile's candidate list and the Gaussians it names stay
+    in cache for its pixels (row by row, a 512-wide image cycles through 64 tiles' lists). The
+    scratch arrays, then render_pixels (grown and resumed when a ray needs more hit rows). Kept
+    out of render_rows' prange body on purpose: per-pixel calls made from inside a parfor body
+    with many array arguments measured ~18 us each here."""
+    n_obj = objs.w2i.shape[0]
+    mw = accel.max_walk
+    scr = Scratch(np.empty(mw), np.empty(mw), np.empty(mw, np.int32), np.empty(mw, np.int32),
+                  np.empty(mw, np.int64), np.empty(2 * mw), np.empty(mw, np.int64),
+                  np.empty(mw, np.int32), np.empty(mw, np.int32),
+                  np.empty((n_obj, 3)), np.empty((n_obj, 3)), np.empty((n_obj, 2)),
+                  np.empty((n_obj, 3), np.int64), np.empty(n_obj), np.empty(n_obj, np.int64),
+                  np.empty(5), np.empty(6), np.empty(6), np.empty(NST), np.empty(6, np.int64),
+                  np.empty(5), np.empty(NB, np.int64), np.empty((NB, 8)), np.empty((n_obj, 2)))
     cap = 256
-    Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
-    out_segs[jr0:jr0 + nr] = 0.0
+    hits = ray_scratch(cap)
+    out.segs[jr0:jr0 + nr] = 0.0
     p = 0
     while True:
-        p = render_pixels(p, jr0, j0, nr, c0, c1, mode, cam, w2i, nmin, ndims, noff, node_table, node_cells,
-                          cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv,
-                          g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                          bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut,
-                          tf_par, settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth,
-                          out_value, out_segs, iv_ta, iv_tb, iv_obj, iv_cell, srt, bnd, act_iv,
-                          cov_obj, cov_cell, ro, rd, lastc, svals, sact, samp, acc, cb, st, qs, fs,
-                          Hs, hid, ev_t, ev_k, ev_h, act, mem, cand, blk, rclip, sprev)
+        p = render_pixels(p, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out, scr, hits)
         if p < 0:
             return
         cap *= 2  # more Gaussians on ray p than this band's scratch holds: grow, redo it
-        Hs, hid, ev_t, ev_k, ev_h, act, mem = ray_scratch(cap)
+        hits = ray_scratch(cap)
 
 
 @parallel_njit(**_jit)
-def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_table, node_cells,
-                cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col, g_val,
-                g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz, obj_kind,
-                obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par, settings, max_walk, t_start,
-                t_items, t_mask, out_rgba, out_depth, out_value, out_segs):
-    """Render rows [row0, row1) and columns [col0, col1) into out_* (indexed from 0 = row0,
-    col0) in bands of the screen tiles' rows (render_band), spread over the image in the order
-    0, 16, 32, ..., 1, 17, ...: the threads get contiguous blocks of it, so each samples the
-    whole image (an object in the top half would otherwise all go to one thread).
-    settings: [T_min, tau_max, k, bg_r, bg_g, bg_b, bg_a, paper_steps, paper_max_depth]."""
+def render_rows(mode, cam, row0, row1, col0, col1, gauss, objs, accel, xfer, out):
+    """Render rows [row0, row1) and columns [col0, col1) into out (packing.Output, indexed from
+    0 = row0, col0) in bands of the screen tiles' rows (render_band), spread over the image in the
+    order 0, 16, 32, ..., 1, 17, ...: the threads get contiguous blocks of it, so each samples the
+    whole image (an object in the top half would otherwise all go to one thread)."""
     b0 = row0 // TILE
     nb = (row1 - 1) // TILE - b0 + 1 if row1 > row0 else 0
     order = np.empty(nb, np.int64)
@@ -515,9 +465,4 @@ def render_rows(mode, cam, row0, row1, col0, col1, w2i, nmin, ndims, noff, node_
         band = b0 + order[q]
         j0 = max(row0, band * TILE)
         j1 = min(row1, (band + 1) * TILE)
-        render_band(j0 - row0, j0, j1 - j0, col0, col1, mode, cam, w2i, nmin, ndims, noff, node_table,
-                    node_cells, cell_skip, cell_start, cell_items, face_start, face_items, g_mu,
-                    g_inv, g_w, g_col, g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi,
-                    bricks, cell_xyz, obj_kind, obj_tf, obj_ls, obj_step, obj_clip, lights, tf_lut, tf_par,
-                    settings, max_walk, t_start, t_items, t_mask, out_rgba, out_depth, out_value,
-                    out_segs)
+        render_band(j0 - row0, j0, j1 - j0, col0, col1, mode, cam, gauss, objs, accel, xfer, out)

@@ -43,6 +43,7 @@ from ._cpu_math import (
 )
 from ._cpu_surface import surface_hit
 from ._cpu_tiles import TILE
+from .scene import Mode
 
 # hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
 # sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA (and a
@@ -244,7 +245,7 @@ def sweep_start(mode, qs, fs, cb, rd, obj_step):
     fs[RHO] = 0.0
     fs[CEND] = -INF
     reset_bounds(cb)
-    if mode == 1:
+    if mode == Mode.FIELD:
         h = INF
         for ob in range(rd.shape[0]):
             dn = math.sqrt(rd[ob, 0] ** 2 + rd[ob, 1] ** 2 + rd[ob, 2] ** 2)
@@ -498,32 +499,33 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
 
 
 @njit(**_hot, inline="always")
-def sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
-          tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp,
-          acc, sprev):
-    if mode == 0:
-        return sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, act, cb, g_col, g_val,
-                               tau_max)
-    return sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind,
-                       obj_tf, obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev)
+def sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
+    if mode == Mode.PARTICLES:
+        return sweep_particles(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
+                               hits.mem, hits.act, scr.cb, gauss.col, gauss.val, tau_max)
+    return sweep_field(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
+                       hits.act, gauss.rec, gauss.obj, scr.ro, scr.rd, objs.kind, objs.tf, objs.ls,
+                       xfer.lut, xfer.par, scr.svals, scr.sact, scr.samp, scr.acc, scr.sprev)
 
 
 @njit(**_hot)
-def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell_start, cell_items,
-                face_start, face_items, g_rec, g_sph, obj_ref, g_col, g_val, g_obj, g_clo, g_chi,
-                k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, lastc, H,
-                hid, ev_t, ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, rclip, sprev):
-    """One ray, modes 0 (particles) and 1 (field), over the n leaf cells visited, in srt order
-    (the chords clipped to the ray's [tn, tf] and their object's clip interval rclip[ob]).
-    Returns 0, or OVERFLOW when more hits than H's rows are needed (the caller grows and retries)."""
-    sweep_start(mode, qs, fs, cb, rd, obj_step)
+def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max):
+    """One ray, particles or field, over the n leaf cells visited, in scr.srt order (the chords
+    clipped to the ray's [tn, tf] and their object's clip interval scr.rclip[ob]). Returns 0, or
+    OVERFLOW when more hits than hits.rec's rows are needed (the caller grows and retries)."""
+    ro, rd, rclip, lastc, qs = scr.ro, scr.rd, scr.rclip, scr.lastc, scr.qs
+    H, hid, ev_t, ev_k, ev_h = hits.rec, hits.hid, hits.ev_t, hits.ev_k, hits.ev_h
+    g_rec, g_sph, g_clo, g_chi, obj_ref = gauss.rec, gauss.sph, gauss.clo, gauss.chi, objs.ref
+    cell_xyz, cell_start, cell_items = accel.cell_xyz, accel.cell_start, accel.cell_items
+    face_start, face_items = accel.face_start, accel.face_items
+    sweep_start(mode, qs, scr.fs, scr.cb, rd, objs.step)
     for ob in range(ro.shape[0]):
         lastc[ob, 0] = -(1 << 62)
     for q in range(n):
         # --- 1. test the Gaussians first met in cell q
-        iv = srt[q]
-        ob = iv_obj[iv]
-        cid = iv_cell[iv]
+        iv = scr.srt[q]
+        ob = scr.iv_obj[iv]
+        cid = scr.iv_cell[iv]
         ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
         dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
         tno, tfo = max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1])
@@ -566,10 +568,8 @@ def trace_gauss(mode, st, n, iv_ta, iv_obj, iv_cell, srt, ro, rd, cell_xyz, cell
         lastc[ob, 1] = cy
         lastc[ob, 2] = cz
         # --- 2. sweep what is complete before the next cell's entry
-        horizon = iv_ta[srt[q + 1]] if q + 1 < n else INF
-        if sweep(mode, horizon, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
-                 g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
-                 tf_par, svals, sact, samp, acc, sprev):
+        horizon = scr.iv_ta[scr.srt[q + 1]] if q + 1 < n else INF
+        if sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
             return 0
     return 0
 
@@ -592,14 +592,15 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
 
 
 @njit(**_hot)
-def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g_val, g_obj,
-                k2, tn, tf, tau_max, obj_step, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, H, hid, ev_t,
-                ev_k, ev_h, act, mem, svals, sact, samp, acc, cb, qs, fs, cand, blk, rclip, sprev):
-    """One ray (pixel i, j), modes 0 and 1, over its screen tile's list t_items[t0:t1] (ordered
-    by the lower bound of each support's entry, g_rec[g, LB]: see _cpu_tiles), in blocks of NB
-    candidates (the entries with the pixel's mask bit), the chords clipped to the ray's [tn, tf].
-    Returns 0 or OVERFLOW."""
-    sweep_start(mode, qs, fs, cb, rd, obj_step)
+def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max):
+    """One ray (pixel i, j), particles or field, over its screen tile's list accel.t_items[t0:t1]
+    (ordered by the lower bound of each support's entry, gauss.rec[g, LB]: see _cpu_tiles), in blocks
+    of NB candidates (the entries with the pixel's mask bit), the chords clipped to the ray's
+    [tn, tf]. Returns 0 or OVERFLOW."""
+    qs, fs, cand, blk = scr.qs, scr.fs, scr.cand, scr.blk
+    H, hid, ev_t, ev_k, ev_h = hits.rec, hits.hid, hits.ev_t, hits.ev_k, hits.ev_h
+    t_items, t_mask, g_rec = accel.t_items, accel.t_mask, gauss.rec
+    sweep_start(mode, qs, fs, scr.cb, scr.rd, objs.step)
     swept = 0
     bit = (j % TILE) * TILE + i % TILE
     q = t0
@@ -616,11 +617,9 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
         if qs[NH] >= swept + BATCH and ((qs[QH] < qs[NQ] and ev_t[qs[QH]] < lbg)
                                         or (qs[NM] > 0 and fs[CEND] <= lbg)):
             swept = qs[NH]
-            if sweep(mode, lbg, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb,
-                     g_col, g_val, tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut,
-                     tf_par, svals, sact, samp, acc, sprev):
+            if sweep(mode, lbg, st, gauss, objs, xfer, scr, hits, tau_max):
                 return 0
-        test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip)
+        test_block(cand, nc, scr.ro, scr.rd, g_rec, gauss.obj, k2, tn, tf, blk, scr.rclip)
         nh = qs[NH]
         nq = qs[NQ]
         q0 = qs[QH]
@@ -634,7 +633,5 @@ def trace_tiles(mode, st, i, j, t0, t1, t_items, t_mask, ro, rd, g_rec, g_col, g
             nh += 1
         qs[NH] = nh
         qs[NQ] = nq
-    sweep(mode, INF, st, qs, fs, H, hid, ev_t, ev_k, ev_h, act, mem, cb, g_col, g_val,
-          tau_max, g_rec, g_obj, ro, rd, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, svals, sact,
-          samp, acc, sprev)
+    sweep(mode, INF, st, gauss, objs, xfer, scr, hits, tau_max)
     return 0

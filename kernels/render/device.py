@@ -20,13 +20,12 @@ from contextlib import contextmanager
 import numpy as np
 
 from ..cachedir import set_cache_root
-from . import clip, lights
+from . import packing
 from .accel import build_gauss_accel, build_voxel_accel
 from .camera import Camera
-from .scene import RenderScene, same_geometry
+from .scene import Mode, RenderScene, same_geometry
 from .transfer import LUT_SIZE, TransferFunction
 
-MODE_IDS = {"particles": 0, "field": 1, "paper": 2, "reference": 3}
 MAX_TILE_ENTRIES = 24_000_000  # screen-tile list entries per frame (id + pixel mask: 288 MB)
 
 
@@ -152,36 +151,11 @@ class CPUDevice(Device):
 
     # -- render ---------------------------------------------------------------------------
     def _prepare(self, scene, tf):
-        objs = scene.objects
-        n = len(objs)
-        tfs = [tf]
-        obj_tf = np.zeros(n, np.int32)
-        for k, o in enumerate(objs):
-            if o.tf is not None:
-                tfs.append(o.tf)
-                obj_tf[k] = len(tfs) - 1
-        tfs = [_resample(t) for t in tfs]
-        tf_lut = np.ascontiguousarray(np.stack([t.lut.astype(np.float64) for t in tfs]))
-        tf_par = np.stack([t.packed() for t in tfs])
-        # 0 volume, 1 level-set shell, 2 level-set surface (paper mode: shells)
-        obj_kind = np.array([(2 if o.surface and scene.mode != "paper" else 1) if o.is_level_set else 0
-                             for o in objs], np.int32)
-        obj_ls = np.zeros((n, 11))
-        axes = {"x": 0, "y": 1, "z": 2}
-        for k, o in enumerate(objs):
-            c = o.level_set_color
-            if isinstance(c, str):
-                ax = axes[c.lower()]
-                obj_ls[k, 0] = 0.0
-                obj_ls[k, 1:5] = o.matrix_world[ax]
-                obj_ls[k, 5:7] = self.coord_range[k, ax]
-            else:
-                obj_ls[k, 0] = 1.0
-                obj_ls[k, 8:11] = np.asarray(c, np.float64)[:3]
-            obj_ls[k, 7] = self.voxel_world[k]
-        obj_step = np.full(n, float(scene.step))
-        return (tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step, clip.pack(objs),
-                lights.pack(scene.lights))
+        """The frame's transfer functions and the packed per-object and transfer tables."""
+        tfs, obj_tf = packing.transfer_functions(scene, tf, _resample)
+        ref = self.gacc.obj_ref if scene.mode != "reference" else np.zeros((max(1, len(scene.objects)), 3))
+        objects = packing.pack_objects(scene, obj_tf, self.w2i, self.coord_range, self.voxel_world, ref)
+        return tfs, objects, packing.pack_transfer(scene, tfs)
 
     def _gauss_weights(self, mode, tfs, obj_tf, obj_kind, obj_ls):
         """Per-Gaussian extinction scale (particles/paper: density * alpha(v) * a; level sets:
@@ -196,7 +170,7 @@ class CPUDevice(Device):
                 continue
             t = tfs[obj_tf[k]]
             v, a = A.g_val[s], A.g_amp[s]
-            if mode == 1:
+            if mode == Mode.FIELD:
                 w[s] = a if obj_kind[k] else np.nan_to_num(v) * a
                 continue
             if obj_kind[k]:
@@ -219,7 +193,7 @@ class CPUDevice(Device):
         c = acc.n_cells
         if c == 0:
             return np.zeros(1, np.uint8)
-        if mode == 3:
+        if mode == Mode.REFERENCE:
             skip = np.zeros(c, np.uint8)
             cell_obj = acc.cell_obj
             for k in range(len(obj_tf)):
@@ -234,7 +208,7 @@ class CPUDevice(Device):
             return skip
         items = acc.cell_items
         starts = acc.cell_start[:-1]
-        if mode != 1:
+        if mode != Mode.FIELD:
             mx = np.maximum.reduceat(np.abs(w[items]), starts)
             return (mx <= 0).astype(np.uint8)
         # field: bound the summed field per cell: [sum of negative weights, sum of positive]
@@ -259,10 +233,10 @@ class CPUDevice(Device):
         ids, pixel masks and each Gaussian's entry bound; or empty arrays (the kernels then walk
         the leaf hierarchy) when switched off or when the lists would pass MAX_TILE_ENTRIES (a
         camera inside a dense volume puts every support near the eye plane in every tile)."""
-        none = (np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros(1, np.int64), None)
+        none = packing.NO_TILES + (None,)
         A = self.gacc
         m = A.g_mu.shape[0]
-        if not self.screen_tiles or m == 0 or mode > 1:
+        if not self.screen_tiles or m == 0 or mode > Mode.FIELD:
             return none
         cam = camera.packed()
         rot, pos = camera.basis()
@@ -289,31 +263,22 @@ class CPUDevice(Device):
         items, masks = kt.tile_fill(box, lb, cnt, start, ntx)
         return start, items, masks, lb
 
-    @staticmethod
-    def _settings(scene):
-        """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth, surface shading
-        (ambient, diffuse, specular, shininess)] for render_rows."""
-        bg = np.asarray(scene.background, np.float64).ravel()
-        bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
-        return np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
-                         float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
-                         float(scene.paper_steps), float(scene.paper_max_depth),
-                         *(float(v) for v in scene.shading)])
-
     def _frame_key(self, mode, scene, camera, prep):
         """What a frame's state depends on besides the geometry (sync count): mode, tile switch,
         camera, settings and the transfer-function tables."""
-        return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes(),
-                self._settings(scene).tobytes()) + tuple(
-                    np.ascontiguousarray(a).tobytes() for a in prep[1:])
+        _, objects, transfer = prep
+        tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
+                  objects.clip, transfer.lights, transfer.settings)
+        return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes()) + tuple(
+            np.ascontiguousarray(a).tobytes() for a in tables)
 
     def begin_frame(self, scene, camera, tf):
         if self.gacc is None or not same_geometry(scene.geometry_key(), self._key):
             self.sync(scene)
-        mode = MODE_IDS[scene.mode]
+        mode = Mode.of(scene.mode)
         prep = self._prepare(scene, tf)
-        if mode == 0 and (prep[4] == 2).any():
-            mode = 1  # surfaces are found by the field sampler: a frame with one draws as field
+        if mode == Mode.PARTICLES and (prep[1].kind == 2).any():
+            mode = Mode.FIELD  # surfaces are found by the field sampler: a frame with one draws as field
         key = self._frame_key(mode, scene, camera, prep)
         if self._frame is not None and self._frame.key == key:
             self.stats["seconds_setup"] = 0.0
@@ -342,59 +307,26 @@ class CPUDevice(Device):
         return time.perf_counter() - t0
 
     def _build_frame(self, mode, scene, camera, prep):
-        tfs, obj_tf, tf_lut, tf_par, obj_kind, obj_ls, obj_step, obj_clip, light_rows = prep
-        if mode == 3:
+        tfs, objects, transfer = prep
+        obj_tf, obj_kind = objects.tf, objects.kind
+        if mode == Mode.REFERENCE:
             acc = self.vacc
             if acc is None:
                 raise ValueError("reference mode needs the source grids (RenderObject.grid)")
-            g_w = np.zeros(1)
-            g_col = np.zeros((1, 3))
-            bricks, cell_xyz = acc.bricks, acc.cell_xyz
-            cell_start, cell_items = np.zeros(2, np.int64), np.zeros(1, np.int32)
-            face_start, face_items = np.zeros(7, np.int64), np.zeros(1, np.int32)
-            g_mu = g_inv = np.zeros((1, 3))
-            g_val, g_obj, g_volfac = np.zeros(1), np.zeros(1, np.int32), np.zeros(1)
-            g_clo = g_chi = np.zeros((1, 3), np.int64)
-            g_rec = np.zeros((1, 8))
-            g_sph, obj_ref = np.zeros((1, 4), np.float32), np.zeros((max(1, len(scene.objects)), 3))
+            gauss = packing.empty_gaussians()
         else:
             acc = self.gacc
-            g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, obj_ls)
-            bricks = np.zeros((1, 10, 10, 10), np.float32)
-            cell_xyz = acc.cell_xyz if acc.cell_xyz.size else np.zeros((1, 3), np.int64)
-            cell_start, cell_items = acc.cell_start, acc.cell_items
-            face_start, face_items = acc.face_start, acc.face_items
-            g_mu, g_inv, g_val, g_obj, g_volfac = acc.g_mu, acc.g_inv, acc.g_val, acc.g_obj, acc.g_volfac
-            g_clo, g_chi = acc.g_clo, acc.g_chi
-            if g_mu.shape[0] == 0:
-                g_mu = g_inv = np.zeros((1, 3))
-                g_val, g_obj, g_volfac, g_w = np.zeros(1), np.zeros(1, np.int32), np.zeros(1), np.zeros(1)
-                g_col = np.zeros((1, 3))
-                cell_items = face_items = np.zeros(1, np.int32)
-                g_clo = g_chi = np.zeros((1, 3), np.int64)
-            # what the per-ray Gaussian test reads, one 64-byte row each: centre, 1/sigma (kept from
-            # sync), this frame's weight and the entry bound (tile lists)
-            if self._g_rec is None or self._g_rec.shape[0] != g_mu.shape[0]:
-                self._g_rec = np.zeros((g_mu.shape[0], 8))
-                self._g_rec[:, 0:3], self._g_rec[:, 3:6] = g_mu, g_inv
-            g_rec = self._g_rec
-            g_rec[:, 6] = g_w
-            g_sph, obj_ref = self.gacc.g_sph, self.gacc.obj_ref
-            if g_sph.shape[0] == 0:
-                g_sph = np.zeros((1, 4), np.float32)
-        cell_skip = self._cell_skip(mode, acc, g_w, tfs, obj_tf, obj_kind)
-        t_start, t_items, t_mask, t_lb = self._screen_tiles(mode, scene, camera, g_w)
+            g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, objects.ls)
+            if self._g_rec is None or self._g_rec.shape[0] != acc.g_mu.shape[0]:
+                self._g_rec = packing.test_records(acc)
+            gauss = packing.pack_gaussians(acc, g_w, g_col, self._g_rec)
+        cell_skip = self._cell_skip(mode, acc, gauss.w, tfs, obj_tf, obj_kind)
+        *tiles, t_lb = self._screen_tiles(mode, scene, camera, gauss.w)
         if t_lb is not None:
-            g_rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
-        settings = self._settings(scene)
-        # render_rows' arguments after (mode, cam, rows, columns) and before the outputs
-        args = (self.w2i, acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
-                cell_skip, cell_start, cell_items, face_start, face_items, g_mu, g_inv, g_w, g_col,
-                g_val, g_obj, g_volfac, g_rec, g_sph, obj_ref, g_clo, g_chi, bricks, cell_xyz,
-                obj_kind, obj_tf, obj_ls, obj_step, obj_clip, light_rows, tf_lut, tf_par, settings,
-                acc.max_walk,
-                t_start, t_items, t_mask)
-        return _Frame(mode, camera.packed(), camera.width, camera.height, args)
+            gauss.rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
+        accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=mode == Mode.REFERENCE)
+        return _Frame(mode, camera.packed(), camera.width, camera.height, gauss, objects, accel,
+                      transfer)
 
     def band_rows(self, scene):
         # The kernels spread a band's screen-tile rows over the threads in static chunks, so a
@@ -450,8 +382,9 @@ class CPUDevice(Device):
                 o_rgba = np.empty((b - a, nc, 4))
                 o_depth = np.empty((b - a, nc))
                 o_value = np.empty((b - a, nc))
-                self._k.render_rows(frame.mode, frame.cam, r0 + a, r0 + b, c0, c1, *frame.args,
-                                    o_rgba, o_depth, o_value, segs[a:b])
+                self._k.render_rows(int(frame.mode), frame.cam, r0 + a, r0 + b, c0, c1,
+                                    frame.gauss, frame.objects, frame.accel, frame.transfer,
+                                    packing.Output(o_rgba, o_depth, o_value, segs[a:b]))
                 rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
                 a = b
                 if progress is not None:
@@ -467,11 +400,12 @@ class CPUDevice(Device):
 
 
 class _Frame:
-    """A frame's state from begin_frame: the kernels' per-frame arguments (weights, colours, cell
-    skips, screen-tile lists), the packed camera and its key."""
+    """A frame's state from begin_frame: the kernels' inputs (packing's groups: this frame's
+    weights, colours, cell skips, screen-tile lists), the packed camera and its key."""
 
-    def __init__(self, mode, cam, width, height, args):
-        self.mode, self.cam, self.width, self.height, self.args = mode, cam, width, height, args
+    def __init__(self, mode, cam, width, height, gauss, objects, accel, transfer):
+        self.mode, self.cam, self.width, self.height = mode, cam, width, height
+        self.gauss, self.objects, self.accel, self.transfer = gauss, objects, accel, transfer
         self.key = None
 
 

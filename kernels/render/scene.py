@@ -3,13 +3,27 @@ matrices), the background, and the render settings."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntEnum
 from typing import Any, Optional
 
 import numpy as np
 
 from .transfer import TransferFunction
 
-MODES = ("particles", "field", "paper", "reference")
+
+class Mode(IntEnum):
+    """The render modes; the kernels receive them as ints (int(Mode.FIELD) == 1)."""
+    PARTICLES = 0  # closed-form Gaussian segments (_cpu_gauss)
+    FIELD = 1      # the summed Gaussian field, sampled (_cpu_gauss)
+    PAPER = 2      # the seed paper's closest hits (_cpu)
+    REFERENCE = 3  # trilinear voxel samples of the source grid (_cpu)
+
+    @classmethod
+    def of(cls, name: str) -> "Mode":
+        return cls[name.upper()]
+
+
+MODES = tuple(m.name.lower() for m in Mode)  # RenderScene.mode's names, in Mode's order
 
 
 @dataclass

@@ -1,0 +1,154 @@
+"""The render kernels' inputs, grouped by what they describe, and the plain-numpy code that packs a
+RenderScene and a frame's set-up into them. Free of numba so that every device shares it: the CPU
+kernels take these named tuples as arguments (numba passes them without allocation), a GPU device
+packs the same groups into its buffers or textures.
+
+Arrays that may be empty (no Gaussians, no voxel bricks, no tile lists) get one dummy row, so the
+kernels never see a zero-length array they would have to special-case.
+"""
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+
+from . import clip, lights
+
+# Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
+# one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
+# lists); sph: a float32 bounding sphere near obj_ref; clo/chi: the leaf-cell box of its support.
+Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi")
+# Per object: world -> index matrix, kind (0 volume, 1 level-set shell, 2 level-set surface),
+# its transfer function's row, level-set colouring (see pack_objects), sample step in voxels,
+# clip half-spaces (clip.pack) and the float32 reference point of the bounding spheres.
+Objects = namedtuple("Objects", "w2i kind tf ls step clip ref")
+# Acceleration: the leaf hierarchy (per-object node grids, node -> cell tables), the cells'
+# Gaussian lists (and per entry face), this frame's empty-space skips, voxel bricks (reference
+# mode), the longest leaf walk, and this frame's screen-tile lists (starts, ids, pixel masks).
+Accel = namedtuple("Accel", "node_min node_dims node_off node_table node_cells cell_skip cell_start "
+                            "cell_items face_start face_items cell_xyz bricks max_walk t_start "
+                            "t_items t_mask")
+# Transfer functions (rows: the scene's, then each object's own), lights (lights.pack) and the
+# scalar settings (pack_settings).
+Transfer = namedtuple("Transfer", "lut par lights settings")
+# The passes of the rows being drawn: rgba, depth, value (float64) and segments per row.
+Output = namedtuple("Output", "rgba depth value segs")
+
+# The CPU kernels' per-thread buffers (render_band allocates them): the leaf walk's intervals
+# (entry, exit, object, cell), their order and boundaries, the active intervals and a piece's
+# covering leaves (paper, reference), the ray per object (index space) and its clip interval, the
+# walk's last cell per object, per-object sample sums, one sample and its sums, colour bounds,
+# the ray state, the sweep state, a block of tile candidates and their tests, surfaces' previous
+# sample per object.
+Scratch = namedtuple("Scratch", "iv_ta iv_tb iv_obj iv_cell srt bnd act_iv cov_obj cov_cell ro rd "
+                                "rclip lastc svals sact samp acc cb st qs fs cand blk sprev")
+# Per-ray hits (particles, field), grown on demand: records, Gaussian ids, the entry queue (times,
+# keys, hits), the active set (field; particles: the members carried over), the members.
+Hits = namedtuple("Hits", "rec hid ev_t ev_k ev_h act mem")
+
+# settings columns
+(SET_TMIN, SET_TAU_MAX, SET_K, SET_BG, SET_PAPER_STEPS, SET_PAPER_DEPTH,
+ SET_SHADING) = 0, 1, 2, 3, 7, 8, 9
+
+
+def pack_settings(scene) -> np.ndarray:
+    """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth, surface shading
+    (ambient, diffuse, specular, shininess)]."""
+    bg = np.asarray(scene.background, np.float64).ravel()
+    bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
+    return np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
+                     float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
+                     float(scene.paper_steps), float(scene.paper_max_depth),
+                     *(float(v) for v in scene.shading)])
+
+
+def transfer_functions(scene, tf, resample):
+    """The frame's transfer functions (the scene's first, then each object's own, resampled to
+    the kernels' table size) and each object's row among them."""
+    tfs = [tf]
+    obj_tf = np.zeros(len(scene.objects), np.int32)
+    for k, o in enumerate(scene.objects):
+        if o.tf is not None:
+            tfs.append(o.tf)
+            obj_tf[k] = len(tfs) - 1
+    return [resample(t) for t in tfs], obj_tf
+
+
+def pack_transfer(scene, tfs) -> Transfer:
+    lut = np.ascontiguousarray(np.stack([t.lut.astype(np.float64) for t in tfs]))
+    par = np.stack([t.packed() for t in tfs])
+    return Transfer(lut, par, lights.pack(scene.lights), pack_settings(scene))
+
+
+def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref) -> Objects:
+    """ls rows: [0] 1 for a constant colour (rgb in [8:11]), else 0 and a colormap over the world
+    coordinate [1:5] . (x, y, z, 1) of index points across [5:7]; [7] the voxel's world size.
+    Level sets in paper mode are shells (the paper has no surfaces)."""
+    objs = scene.objects
+    n = len(objs)
+    kind = np.array([(2 if o.surface and scene.mode != "paper" else 1) if o.is_level_set else 0
+                     for o in objs], np.int32)
+    ls = np.zeros((n, 11))
+    axes = {"x": 0, "y": 1, "z": 2}
+    for k, o in enumerate(objs):
+        c = o.level_set_color
+        if isinstance(c, str):
+            ax = axes[c.lower()]
+            ls[k, 0] = 0.0
+            ls[k, 1:5] = o.matrix_world[ax]
+            ls[k, 5:7] = coord_range[k, ax]
+        else:
+            ls[k, 0] = 1.0
+            ls[k, 8:11] = np.asarray(c, np.float64)[:3]
+        ls[k, 7] = voxel_world[k]
+    step = np.full(n, float(scene.step))
+    return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref)
+
+
+def empty_gaussians() -> Gaussians:
+    """One dummy Gaussian of weight 0 (reference mode, or objects without Gaussians)."""
+    z3 = np.zeros((1, 3))
+    zc = np.zeros((1, 3), np.int64)
+    return Gaussians(z3, z3, np.zeros(1), np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int32),
+                     np.zeros(1), np.zeros((1, 8)), np.zeros((1, 4), np.float32), zc, zc)
+
+
+def pack_gaussians(acc, w, col, rec) -> Gaussians:
+    """The synced Gaussians with this frame's weights w and colours col; rec: the device's
+    (m, 8) test records, rewritten here (centre and 1/sigma kept from sync, column 6 = w)."""
+    if acc.g_mu.shape[0] == 0:
+        return empty_gaussians()
+    rec[:, 6] = w
+    sph = acc.g_sph if acc.g_sph.shape[0] else np.zeros((1, 4), np.float32)
+    return Gaussians(acc.g_mu, acc.g_inv, w, col, acc.g_val, acc.g_obj, acc.g_volfac, rec, sph,
+                     acc.g_clo, acc.g_chi)
+
+
+def test_records(acc):
+    """(m, 8) rows for the per-ray Gaussian test: centre and 1/sigma filled, weight and entry
+    bound per frame (pack_gaussians, the tile lists)."""
+    rec = np.zeros((acc.g_mu.shape[0], 8))
+    rec[:, 0:3], rec[:, 3:6] = acc.g_mu, acc.g_inv
+    return rec
+
+
+NO_TILES = (np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros(1, np.int64))
+
+
+def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False) -> Accel:
+    """acc: the synced Gaussian (or, voxels=True, voxel) acceleration; tiles: (starts, ids,
+    masks), or NO_TILES for the leaf walk."""
+    if voxels:
+        cell_start, cell_items = np.zeros(2, np.int64), np.zeros(1, np.int32)
+        face_start, face_items = np.zeros(7, np.int64), np.zeros(1, np.int32)
+        bricks, cell_xyz = acc.bricks, acc.cell_xyz
+    else:
+        cell_start, cell_items = acc.cell_start, acc.cell_items
+        face_start, face_items = acc.face_start, acc.face_items
+        if acc.g_mu.shape[0] == 0:
+            cell_items = face_items = np.zeros(1, np.int32)
+        bricks = np.zeros((1, 10, 10, 10), np.float32)
+        cell_xyz = acc.cell_xyz if acc.cell_xyz.size else np.zeros((1, 3), np.int64)
+    return Accel(acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
+                 cell_skip, cell_start, cell_items, face_start, face_items, cell_xyz, bricks,
+                 acc.max_walk, *tiles)
