@@ -16,9 +16,20 @@ from ..jit import njit, parallel_njit, prange
 from ._cpu_gauss import NB, NF, OVERFLOW, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
+    DEPTH,
+    HIT,
+    HIT_NORMAL,
     HIT_OB,
     INF,
     NST,
+    PCUR,
+    PDEPTH,
+    RAD,
+    SEGS,
+    TMIN,
+    TR,
+    VSUM,
+    VWT,
     _hot,
     _jit,
     add_sample,
@@ -34,7 +45,16 @@ from ._cpu_math import (
 from ._cpu_surface import brick_xyz, mixture_normal, sdf_crossing, shade_hit, surface_hit, trilinear_grad
 from ._cpu_tiles import TILE
 from ._cpu_walk import clip_interval, walk_object
-from .packing import Hits, Scratch
+from .packing import (
+    SET_BG,
+    SET_K,
+    SET_PAPER_DEPTH,
+    SET_PAPER_STEPS,
+    SET_TAU_MAX,
+    SET_TMIN,
+    Hits,
+    Scratch,
+)
 from .scene import Mode
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
@@ -108,7 +128,7 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
                 continue
             if obj_kind[ob] == 1:  # SDF (world units) -> occupancy with a one-voxel ramp
                 val = 0.5 - val / obj_ls[ob, 7]
-            st[7] += 1
+            st[SEGS] += 1
             sample_color(ob, val, x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             add_sample(acc, samp)
         if best >= 0:
@@ -128,7 +148,7 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
             return
         if acc[0] > 0.0:
             composite_sample(st, acc, t, h)
-            if st[0] < st[9]:
+            if st[TR] < st[TMIN]:
                 return
 
 
@@ -139,11 +159,11 @@ def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_it
     origin, fixed midpoint steps over its chord, A = rho dt / det(Sigma), C += T c A,
     T *= exp(-A), continue after its exit; overlapping Gaussians entered earlier are ignored.
     Chords are cut to their object's clip interval rclip[ob] (clip.py)."""
-    while st[10] < max_depth and st[0] >= st[9]:
+    while st[PDEPTH] < max_depth and st[TR] >= st[TMIN]:
         best = -1
         bt0 = INF
         bt1 = 0.0
-        tcur = max(st[11], p0)
+        tcur = max(st[PCUR], p0)
         for c in range(ncov):
             ob = cov_obj[c]
             cid = cov_cell[c]
@@ -183,19 +203,19 @@ def paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, cell_start, cell_it
             uz = (oz + t * dz - g_mu[g, 2]) * g_inv[g, 2]
             rho = math.exp(-0.5 * (ux * ux + uy * uy + uz * uz))
             A = g_w[g] * rho * dt * g_volfac[g]
-            T = st[0]
-            st[1] += T * g_col[g, 0] * A
-            st[2] += T * g_col[g, 1] * A
-            st[3] += T * g_col[g, 2] * A
+            T = st[TR]
+            st[RAD] += T * g_col[g, 0] * A
+            st[RAD + 1] += T * g_col[g, 1] * A
+            st[RAD + 2] += T * g_col[g, 2] * A
             if g_val[g] == g_val[g]:
-                st[5] += T * A * g_val[g]
-                st[6] += T * A
-            st[0] = T * math.exp(-A)
-            if st[4] == BG_DEPTH and st[0] <= 0.5:
-                st[4] = t
-        st[7] += nsteps
-        st[10] += 1
-        st[11] = bt1
+                st[VSUM] += T * A * g_val[g]
+                st[VWT] += T * A
+            st[TR] = T * math.exp(-A)
+            if st[DEPTH] == BG_DEPTH and st[TR] <= 0.5:
+                st[DEPTH] = t
+        st[SEGS] += nsteps
+        st[PDEPTH] += 1
+        st[PCUR] = bt1
 
 
 @njit(**_hot)
@@ -279,13 +299,13 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
             paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, scr.ro, scr.rd, accel.cell_start,
                         accel.cell_items, gauss.mu, gauss.inv, gauss.w, gauss.col, gauss.val,
                         gauss.obj, gauss.volfac, k2, nsteps, maxd, scr.rclip)
-            if st[10] >= maxd:
+            if st[PDEPTH] >= maxd:
                 return
         else:
             reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, scr.ro, scr.rd, objs.step,
                             accel.bricks, accel.cell_xyz, objs.kind, objs.tf, objs.ls, xfer.lut,
                             xfer.par, scr.samp, scr.acc, scr.sprev)
-        if st[0] < st[9] or st[8] > 0.0:
+        if st[TR] < st[TMIN] or st[HIT] > 0.0:
             return
 
 
@@ -317,12 +337,13 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
     w2i = objs.w2i
     n_obj = w2i.shape[0]
     settings = xfer.settings
-    tmin_T = settings[0]
-    tau_max = settings[1]
-    k2 = settings[2] * settings[2]
-    bgr, bgg, bgb, bga = settings[3], settings[4], settings[5], settings[6]
-    nsteps = int(settings[7])
-    maxd = settings[8]
+    tmin_T = settings[SET_TMIN]
+    tau_max = settings[SET_TAU_MAX]
+    k2 = settings[SET_K] * settings[SET_K]
+    bgr, bgg, bgb, bga = (settings[SET_BG], settings[SET_BG + 1], settings[SET_BG + 2],
+                          settings[SET_BG + 3])
+    nsteps = int(settings[SET_PAPER_STEPS])
+    maxd = settings[SET_PAPER_DEPTH]
     t_start = accel.t_start
     tiled = mode <= Mode.FIELD and t_start.shape[0] > 1
     ntx = (W + TILE - 1) // TILE
@@ -374,18 +395,18 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
                                 accel.node_off[ob], accel.node_table, accel.node_cells,
                                 accel.cell_skip, ob, scr.iv_ta, scr.iv_tb, scr.iv_obj, scr.iv_cell,
                                 n, accel.max_walk)
-        st[0] = 1.0
-        st[1] = 0.0
-        st[2] = 0.0
-        st[3] = 0.0
-        st[4] = BG_DEPTH
-        st[5] = 0.0
-        st[6] = 0.0
-        st[7] = 0.0
-        st[8] = 0.0
-        st[9] = tmin_T
-        st[10] = 0.0
-        st[11] = -INF
+        st[TR] = 1.0
+        st[RAD] = 0.0
+        st[RAD + 1] = 0.0
+        st[RAD + 2] = 0.0
+        st[DEPTH] = BG_DEPTH
+        st[VSUM] = 0.0
+        st[VWT] = 0.0
+        st[SEGS] = 0.0
+        st[HIT] = 0.0
+        st[TMIN] = tmin_T
+        st[PDEPTH] = 0.0
+        st[PCUR] = -INF
         for ob in range(n_obj):
             sprev[ob, 0] = 0.0
             sprev[ob, 1] = np.nan
@@ -401,20 +422,20 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
                 rc = trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max)
             if rc == OVERFLOW:
                 return p
-        if st[8] == 2.0:
+        if st[HIT] == HIT_NORMAL:
             mixture_normal(st, ro, rd, accel.node_min, accel.node_dims, accel.node_off, accel.node_table,
                            accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec)
-        if st[8] > 0.0:
+        if st[HIT] > 0.0:
             shade_hit(st, w2i[int(st[HIT_OB])], xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
-        Tr = st[0]
+        Tr = st[TR]
         io = i - c0
-        out.rgba[jr, io, 0] = st[1] + Tr * bgr * bga
-        out.rgba[jr, io, 1] = st[2] + Tr * bgg * bga
-        out.rgba[jr, io, 2] = st[3] + Tr * bgb * bga
+        out.rgba[jr, io, 0] = st[RAD] + Tr * bgr * bga
+        out.rgba[jr, io, 1] = st[RAD + 1] + Tr * bgg * bga
+        out.rgba[jr, io, 2] = st[RAD + 2] + Tr * bgb * bga
         out.rgba[jr, io, 3] = (1.0 - Tr) + Tr * bga
-        out.depth[jr, io] = st[4]
-        out.value[jr, io] = st[5] / st[6] if st[6] > 0.0 else 0.0
-        out.segs[jr] += st[7]
+        out.depth[jr, io] = st[DEPTH]
+        out.value[jr, io] = st[VSUM] / st[VWT] if st[VWT] > 0.0 else 0.0
+        out.segs[jr] += st[SEGS]
     return -1
 
 

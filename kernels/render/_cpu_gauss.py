@@ -32,7 +32,13 @@ import numpy as np
 from ..jit import njit
 from ._cpu_math import (
     BG_DEPTH,
+    DEPTH,
+    HIT,
+    HIT_NORMAL,
     INF,
+    SEGS,
+    TMIN,
+    TR,
     _hot,
     add_sample,
     composite,
@@ -147,8 +153,8 @@ def chord_tau(H, h, a, b):
 @njit(**_hot)
 def median_depth(st, H, h, a, b, tsum):
     """Depth pass for a one-Gaussian interval: where T crosses 0.5, by bisection on the closed form."""
-    T = st[0]
-    if st[4] != BG_DEPTH or T * math.exp(-tsum) > 0.5:
+    T = st[TR]
+    if st[DEPTH] != BG_DEPTH or T * math.exp(-tsum) > 0.5:
         return
     target = math.log(T / 0.5) if T > 0.5 else 0.0
     lo = a
@@ -159,7 +165,7 @@ def median_depth(st, H, h, a, b, tsum):
             lo = mid
         else:
             hi = mid
-    st[4] = 0.5 * (lo + hi)
+    st[DEPTH] = 0.5 * (lo + hi)
 
 
 @njit(**_hot, inline="always")
@@ -196,7 +202,7 @@ def close_interval(st, H, mem, nm, a, b, spread, tau_max, keep, cb):
             n += 1
             rho += H[h, PK]
             widen(cb, H, h)
-    st[7] += nm
+    st[SEGS] += nm
     if not tsum > 0.0:
         return n, rho
     nsub = 1
@@ -220,10 +226,10 @@ def close_interval(st, H, mem, nm, a, b, spread, tau_max, keep, cb):
             tk = H[h, C] * (f1 - H[h, FB])
             H[h, FB] = f1
             tsum, r, gg, bb, vs, vw = mix_add(H, h, tk, tsum, r, gg, bb, vs, vw)
-        st[7] += nm
+        st[SEGS] += nm
         if tsum > 0.0:
             composite_mix(st, tsum, r, gg, bb, vs, vw, a0, a1)
-            if st[0] < st[9]:
+            if st[TR] < st[TMIN]:
                 break
     return n, rho
 
@@ -320,7 +326,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
         if nm > 0:
             if t >= cend:  # the cluster ended before this entry
                 close_interval(st, H, mem, nm, a, cend, spread_of(cb), tau_max, keep, cb)
-                if st[0] < st[9]:
+                if st[TR] < st[TMIN]:
                     done = 1
                     break
                 nm = 0
@@ -328,7 +334,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
                 spread = spread_of(cb)
                 if rho * (t - a) * spread > tau_max:
                     nm, rho = close_interval(st, H, mem, nm, a, last_t, spread, tau_max, keep, cb)
-                    if st[0] < st[9]:
+                    if st[TR] < st[TMIN]:
                         done = 1
                         break
                     for k in range(nm):  # the members still open carry over
@@ -356,7 +362,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
         last_t = t
     if done == 0 and nm > 0 and cend <= horizon:  # no entry before its end is left to find
         close_interval(st, H, mem, nm, a, cend, spread_of(cb), tau_max, keep, cb)
-        done = 1 if st[0] < st[9] else 0
+        done = 1 if st[TR] < st[TMIN] else 0
         nm = 0
         last_t = cend
     qs[QH], qs[NM] = q0, nm
@@ -387,7 +393,7 @@ def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
     y = ro[ob, 1] + th * rd[ob, 1]
     z = ro[ob, 2] + th * rd[ob, 2]
     surface_hit(st, ob, th, 0.0, 0.0, 0.0, obj_ls, lut, x, y, z)
-    st[8] = 2.0  # the normal is still to be found
+    st[HIT] = HIT_NORMAL  # the normal is still to be found
 
 
 @njit(**_hot)
@@ -460,7 +466,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
                 H[k, V] *= H[k, R]
                 H[k, R] *= H[k, RC]
                 k += 1
-        st[7] += nact
+        st[SEGS] += nact
         acc[:] = 0.0
         best = -1
         bt = INF
@@ -490,7 +496,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
         isamp += 1
         if acc[0] > 0.0:
             composite_sample(st, acc, ti, hstep)
-            if st[0] < st[9]:
+            if st[TR] < st[TMIN]:
                 done = 1
                 break
     qs[QH], qs[NACT], qs[ISAMP] = q0, nact, isamp

@@ -16,6 +16,17 @@ SQRT_PI = math.sqrt(math.pi)
 TWO_OVER_SQRT_PI = 2.0 / math.sqrt(math.pi)
 BG_DEPTH = 1e10
 
+# The per-ray state st (float64) by column: transmittance TR, radiance RAD (rgb: RAD + k), the
+# median depth DEPTH, the value sum VSUM and its weight VWT, segments SEGS, the surface flag HIT
+# (HIT_FOUND, or HIT_NORMAL: found, its normal still to take from the Gaussians), the early-
+# termination threshold TMIN, the paper's continuations PDEPTH and where the last one left PCUR;
+# a surface hit (lit level sets, surface_hit): its t HIT_T, index-space gradient HIT_G (xyz), object
+# HIT_OB and albedo HIT_C (rgb).
+TR, RAD, DEPTH, VSUM, VWT, SEGS, HIT, TMIN, PDEPTH, PCUR = 0, 1, 4, 5, 6, 7, 8, 9, 10, 11
+HIT_T, HIT_G, HIT_OB, HIT_C = 12, 13, 16, 17
+NST = 20
+HIT_FOUND, HIT_NORMAL = 1.0, 2.0
+
 _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # Per-pixel kernels: no allocation, so no reference counting. With it, numba increfs and decrefs
 # (atomically) every array argument of every call, inlined or not: ~9 ns per array per call,
@@ -156,24 +167,24 @@ def lut_rgb(lut, i, w, out):
 
 @njit(**_hot)
 def composite(st, tau, r, g, b, v, ta, tb):
-    """L += T c (1 - e^-tau) (expm1), T *= e^-tau; Value and median Depth bookkeeping.
-    st = [T, Lr, Lg, Lb, depth, vsum, wsum, segs, done, ...]."""
+    """L += T c (1 - e^-tau) (expm1), T *= e^-tau; Value and median Depth bookkeeping (st: the
+    ray's state, see TR)."""
     if tau <= 0.0:
         return
-    T = st[0]
+    T = st[TR]
     em = math.expm1(-tau)
     w = -T * em
-    st[1] += w * r
-    st[2] += w * g
-    st[3] += w * b
+    st[RAD] += w * r
+    st[RAD + 1] += w * g
+    st[RAD + 2] += w * b
     if v == v:
-        st[5] += w * v
-        st[6] += w
+        st[VSUM] += w * v
+        st[VWT] += w
     Tn = T * (1.0 + em)  # exp(-tau), within an ulp of 1
-    if st[4] == BG_DEPTH and Tn <= 0.5:
+    if st[DEPTH] == BG_DEPTH and Tn <= 0.5:
         f = math.log(T / 0.5) / tau if T > 0.5 else 0.0
-        st[4] = ta + f * (tb - ta)
-    st[0] = Tn
+        st[DEPTH] = ta + f * (tb - ta)
+    st[TR] = Tn
 
 
 @njit(**_hot, inline="always")
@@ -248,6 +259,3 @@ def composite_sample(st, acc, t, h):
                   acc[4] / acc[5] if acc[5] > 0 else np.nan, t - 0.5 * h, t + 0.5 * h)
 
 
-# surface hits (lit level sets): the ray's state st[8] = 1 and these columns of st
-HIT_T, HIT_G, HIT_OB, HIT_C = 12, 13, 16, 17
-NST = 20

@@ -6,7 +6,24 @@ from __future__ import annotations
 import math
 
 from ..jit import njit
-from ._cpu_math import BG_DEPTH, HIT_C, HIT_G, HIT_OB, HIT_T, INF, LEAF, NL, _hot, lut_pos
+from ._cpu_math import (
+    BG_DEPTH,
+    DEPTH,
+    HIT,
+    HIT_C,
+    HIT_FOUND,
+    HIT_G,
+    HIT_OB,
+    HIT_T,
+    INF,
+    LEAF,
+    NL,
+    RAD,
+    TR,
+    _hot,
+    lut_pos,
+)
+from .packing import SET_SHADING
 
 
 @njit(**_hot)
@@ -14,7 +31,7 @@ def surface_hit(st, ob, t, gx, gy, gz, obj_ls, lut, x, y, z):
     """The ray ends on object ob's surface at t (index point x, y, z; gx, gy, gz: the outward
     normal's direction in index space): its albedo (the constant colour or the colormap over a
     world coordinate, as for shells) and the depth, for render_pixels to shade."""
-    st[8] = 1.0
+    st[HIT] = HIT_FOUND
     st[HIT_T] = t
     st[HIT_G] = gx
     st[HIT_G + 1] = gy
@@ -29,16 +46,16 @@ def surface_hit(st, ob, t, gx, gy, gz, obj_ls, lut, x, y, z):
         i, w = lut_pos(lut, min(max(u, 0.0), 1.0))
         for k in range(3):
             st[HIT_C + k] = lut[i, k] * (1.0 - w) + lut[i + 1, k] * w
-    if st[4] == BG_DEPTH:
-        st[4] = t
+    if st[DEPTH] == BG_DEPTH:
+        st[DEPTH] = t
 
 
 @njit(**_hot)
 def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
     """Blinn-Phong at the hit in st (see surface_hit) for the world ray o + t d: the normal is
     the index-space gradient through M (world -> index) transposed, turned to face the viewer;
-    par[9:13] = (ambient, diffuse, specular, shininess) (the render settings). Adds T x colour and
-    makes the ray opaque."""
+    par[SET_SHADING:] = (ambient, diffuse, specular, shininess) (packing.pack_settings). Adds
+    T x colour and makes the ray opaque."""
     gx, gy, gz = st[HIT_G], st[HIT_G + 1], st[HIT_G + 2]
     nx = M[0, 0] * gx + M[1, 0] * gy + M[2, 0] * gz
     ny = M[0, 1] * gx + M[1, 1] * gy + M[2, 1] * gz
@@ -52,7 +69,7 @@ def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
         nx, ny, nz = -nx, -ny, -nz
     t = st[HIT_T]
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-    ka, kd, ks, sh = par[9], par[10], par[11], par[12]
+    ka, kd, ks, sh = par[SET_SHADING], par[SET_SHADING + 1], par[SET_SHADING + 2], par[SET_SHADING + 3]
     r = ka * st[HIT_C]
     g = ka * st[HIT_C + 1]
     b = ka * st[HIT_C + 2]
@@ -83,11 +100,11 @@ def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
         r += er * (kd * ndl * st[HIT_C] + spec)
         g += eg * (kd * ndl * st[HIT_C + 1] + spec)
         b += eb * (kd * ndl * st[HIT_C + 2] + spec)
-    T = st[0]
-    st[1] += T * r
-    st[2] += T * g
-    st[3] += T * b
-    st[0] = 0.0
+    T = st[TR]
+    st[RAD] += T * r
+    st[RAD + 1] += T * g
+    st[RAD + 2] += T * b
+    st[TR] = 0.0
 
 
 @njit(**_hot, inline="always")
@@ -229,4 +246,4 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
     st[HIT_G] = gx
     st[HIT_G + 1] = gy
     st[HIT_G + 2] = gz
-    st[8] = 1.0
+    st[HIT] = HIT_FOUND
