@@ -370,8 +370,9 @@ class CPUDevice(Device):
         segs = np.zeros(nr)
         cancelled = False
         with self._thread_count(scene) as threads:
-            # with progress/cancel: steps of tile_rows (default: 32, or two tile rows per thread)
-            step = self.tile_rows or max(32, 2 * self._kt.TILE * threads)
+            # with progress/cancel: steps of tile_rows, by default the rows band_rows asks of a
+            # call (fewer per thread leave threads idle on the slowest row: see band_rows)
+            step = self.tile_rows or self.band_rows(scene)[0]
             step = max(1, int(step)) if (progress or cancel) else nr
             a = 0
             while a < nr:
