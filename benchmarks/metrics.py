@@ -18,7 +18,8 @@ def _rgb(img):
 
 def image_errors(ref, img) -> dict:
     """psnr (dB, data range 1; None when the images are identical), ssim (scikit-image, per channel
-    mean, data range 1), max_abs_error, rmse; all on linear premultiplied RGB."""
+    mean, data range 1), max_abs_error, rmse, brightness (img's summed RGB over ref's); all on linear
+    premultiplied RGB."""
     from skimage.metrics import structural_similarity
 
     a, b = _rgb(ref), _rgb(img)
@@ -26,7 +27,9 @@ def image_errors(ref, img) -> dict:
     psnr = None if mse == 0 else 10.0 * math.log10(1.0 / mse)
     win = min(7, min(a.shape[:2]) // 2 * 2 - 1)
     ssim = float(structural_similarity(a, b, channel_axis=2, data_range=1.0, win_size=max(win, 3)))
-    return {"psnr": psnr, "ssim": ssim, "max_abs_error": float(np.max(np.abs(a - b))), "rmse": math.sqrt(mse)}
+    sa = float(a.sum())
+    return {"psnr": psnr, "ssim": ssim, "max_abs_error": float(np.max(np.abs(a - b))), "rmse": math.sqrt(mse),
+            "brightness": float(b.sum()) / sa if sa > 0 else None}
 
 
 def to_display(img, max_side=256) -> np.ndarray:
