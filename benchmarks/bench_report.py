@@ -33,11 +33,13 @@ else the smallest), its first scalar grid, 128x128, LODs low and high, Cycles at
 from __future__ import annotations
 
 import argparse
+import atexit
 import datetime
 import json
 import math
 import os
 import platform
+import shutil
 import sys
 import tempfile
 import time
@@ -341,7 +343,8 @@ def run(a):
     prog.step("warm-up: render kernels")
     rows, sheets, cycles_meta, vtk_meta = [], {}, {}, {}
     vtk_missing = None
-    work = tempfile.mkdtemp(prefix="gaussvdb-bench-")
+    work = tempfile.mkdtemp(prefix="gaussvdb-bench-")  # the peers' files: removed at exit
+    atexit.register(shutil.rmtree, work, True)
     for path, names in todo:
         ds = os.path.basename(path)
         sheets[ds] = []
