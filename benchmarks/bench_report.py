@@ -241,13 +241,8 @@ def run_cycles(path, grid, view, a, workdir):
 def run(a):
     import numba
 
-    from kernels.lod import (
-        build_lod,
-        encode_compact,
-        encoded_nbytes,
-        field_error,
-        paper_model_bytes,
-    )
+    from kernels.lod import build_lod, encode_compact, encoded_nbytes, paper_model_bytes
+    from kernels.pipeline import convert_lod
     from kernels.render import CPUDevice, RenderObject
     from kernels.vdb import read_vdb
 
@@ -289,11 +284,9 @@ def run(a):
             common = dict(base, seconds_read=t_read, reference_seconds=t_ref, reference_step=REF_STEP,
                           tf_vmin=view["vmin"], tf_vmax=view["vmax"], tf_density=view["density"])
             for lod in a.lods:
-                t0 = time.perf_counter()
-                gs = build_lod(g, lod)
-                t_conv = time.perf_counter() - t0
+                cl = convert_lod(g, lod)  # the import's conversion: timed, with its field error
+                gs, t_conv, e = cl.gset, cl.seconds, cl.error
                 nb = encoded_nbytes(encode_compact(gs))
-                e = field_error(g, gs)
                 conv = {"lod": lod, "gaussians": int(gs.count), "bytes": int(nb),
                             "bytes_per_gaussian": nb / max(gs.count, 1),
                             "paper_model_bytes": int(paper_model_bytes(gs)),
