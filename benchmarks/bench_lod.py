@@ -64,7 +64,8 @@ def _jobs(presets, tolerances):
 
 
 def run(data, presets, weights, repeat, error=True, files=None, tolerances=(0.05, 0.02, 0.01)):
-    from kernels.lod import build_lod, encode_compact, encoded_nbytes, field_error, paper_model_bytes
+    from kernels.lod import encode_compact, encoded_nbytes, paper_model_bytes
+    from kernels.pipeline import convert_lod, measure_error
     from kernels.vdb import read_vdb
 
     rows = []
@@ -84,7 +85,8 @@ def run(data, presets, weights, repeat, error=True, files=None, tolerances=(0.05
                     if high is None or high.get("nrmse") is None:
                         continue
                     th = dict(tolerance=high["nrmse"])
-                t_conv, gs = _best(lambda: build_lod(g, p, weights, **th), repeat)
+                t_conv, gs = _best(lambda: convert_lod(g, p, weights, compute_error=False,
+                                                       thresholds=th).gset, repeat)
                 nb = encoded_nbytes(encode_compact(gs))
                 row = dict(file=os.path.basename(path), grid=name, cls=g.grid_class, lod=label,
                            active_voxels=int(g.active_voxels), leaves=len(g.leaf_origins),
@@ -95,7 +97,7 @@ def run(data, presets, weights, repeat, error=True, files=None, tolerances=(0.05
                            mvox_s=g.active_voxels / (t_read + t_conv) / 1e6,
                            mvox_s_convert=g.active_voxels / t_conv / 1e6)
                 if error:
-                    e = gs.params.get("field_error") or field_error(g, gs)
+                    e = measure_error(g, gs)
                     row.update(nrmse=e["nrmse"], max_abs=e["max_abs"], iou=e.get("surface_iou"))
                 if p == "adaptive":
                     row.update(tolerance=gs.params["tolerance"], met=gs.params["tolerance_met"])

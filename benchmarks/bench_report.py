@@ -267,14 +267,13 @@ class Grid:
         return err
 
     def gaussian_modes(self, lod, gmodes):
-        from kernels.lod import build_lod, encode_compact, encoded_nbytes, field_error, paper_model_bytes
+        from kernels.lod import encode_compact, encoded_nbytes, paper_model_bytes
+        from kernels.pipeline import convert_lod
         from kernels.render import RenderObject
 
-        t0 = time.perf_counter()
-        gs = build_lod(self.g, lod)
-        t_conv = time.perf_counter() - t0
+        cl = convert_lod(self.g, lod)  # the import's conversion: timed, with its field error
+        gs, t_conv, e = cl.gset, cl.seconds, cl.error
         nb = encoded_nbytes(encode_compact(gs))
-        e = field_error(self.g, gs)
         conv = {"lod": lod, "gaussians": int(gs.count), "bytes": int(nb), "bytes_per_gaussian": nb / max(gs.count, 1),
                 "paper_model_bytes": int(paper_model_bytes(gs)), "seconds_convert": t_conv,
                 "field_rmse": e["rmse"], "field_nrmse": e["nrmse"], "field_max_abs": e["max_abs"],

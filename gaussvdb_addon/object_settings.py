@@ -1,6 +1,6 @@
 """Per-object settings (Object.gaussvdb): where the Gaussians came from and which LOD to draw.
 
-The point attributes themselves are described in importer.py (and README "Point-cloud layout");
+The point attributes themselves are described in io/schema.py (and README "Point-cloud layout");
 ``lods`` lists the LODs held in gs_lod order, ``viewport_lod``/``render_lod`` pick one of them like
 the Subdivision modifier's viewport and render levels. With ``use_scene_tf`` off the object's own
 transfer function (the TransferFunctionProps fields) colours it instead of the scene's.

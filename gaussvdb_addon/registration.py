@@ -16,10 +16,12 @@ from . import (
     source_path,
     transfer_ui,
 )
+from .io import versioning
 
 # Properties first (others point at them), panels last (they draw the rest).
+# versioning: the load handler that upgrades files written by older versions.
 MODULES = (object_settings, source_path, render_settings, presets, operators, engine, render_panel,
-           object_panel, transfer_ui)
+           object_panel, transfer_ui, versioning)
 
 
 def bundled_openvdb():

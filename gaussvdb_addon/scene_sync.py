@@ -24,6 +24,7 @@ from ..kernels.render import RenderObject, RenderScene, TransferFunction, clip, 
 from ..kernels.render.legend import LegendEntry
 from ..kernels.render.lights import Light
 from . import blender_settings, sequence_frames
+from .io import schema
 
 _GRID_CACHE = {}  # (abspath, grid, mtime, size) -> GridData
 _GRID_LOCK = threading.Lock()
@@ -32,93 +33,9 @@ LEVEL_SET_AXES = {"X": "x", "Y": "y", "Z": "z", "HEIGHT": "z"}
 
 
 # -- Gaussians of one object --------------------------------------------------------------------
-def lod_names(obj):
-    return [n for n in obj.gaussvdb.lods.split(",") if n] or ["medium"]
-
-
-def chosen_lod(obj, viewport):
-    s = obj.gaussvdb
-    try:
-        lod = s.viewport_lod if viewport else s.render_lod
-    except (TypeError, ValueError):
-        lod = ""
-    return lod or lod_names(obj)[0]
-
-
-def _read_attr(attrs, name, width, dtype):
-    a = attrs.get(name)
-    if a is None:
-        return None
-    n = len(a.data)
-    if width == 3:
-        out = np.empty(n * 3, np.float32)
-        a.data.foreach_get("vector", out)
-        return out.reshape(n, 3)
-    out = np.empty(n, dtype)
-    a.data.foreach_get("value", out)
-    return out
-
-
-def gaussian_set_from_points(obj, lod):
-    """Fallback reader of the point-cloud contract (the importer's ``gaussian_set_from_object``
-    is used when present): point attributes ``position``, ``gs_sigma``, ``gs_value``,
-    ``gs_amplitude``, ``gs_voxels``, ``gs_lod`` (int8: index into ``obj.gaussvdb.lods``).
-    Positions are index space; groups are rebuilt from the 8^3 leaf cells."""
-    from ..kernels.lod.gaussian_set import GaussianSet
-
-    data = obj.data
-    attrs = data.attributes
-    pos = _read_attr(attrs, "position", 3, np.float32)
-    if pos is None:
-        raise ValueError(f"object {obj.name!r} has no point positions")
-    names = lod_names(obj.original if hasattr(obj, "original") else obj)
-    sel = np.ones(len(pos), bool)
-    lod_attr = _read_attr(attrs, "gs_lod", 1, np.int32)
-    if lod_attr is not None:
-        if lod not in names:
-            raise ValueError(f"object {obj.name!r} holds no {lod!r} LOD (has {', '.join(names)})")
-        sel = lod_attr == names.index(lod)
-    sig = _read_attr(attrs, "gs_sigma", 3, np.float32)
-    val = _read_attr(attrs, "gs_value", 1, np.float32)
-    amp = _read_attr(attrs, "gs_amplitude", 1, np.float32)
-    vox = _read_attr(attrs, "gs_voxels", 1, np.int32)
-    if sig is None or amp is None:
-        raise ValueError(f"object {obj.name!r} lacks the gs_sigma/gs_amplitude attributes")
-    m = int(sel.sum())
-    pos, sig = pos[sel].astype(np.float64), sig[sel]
-    val = val[sel] if val is not None else np.ones(m, np.float32)
-    amp = amp[sel]
-    vox = vox[sel] if vox is not None else np.ones(m, np.int32)
-    cell = np.floor((pos + 0.5) / 8.0).astype(np.int64) * 8
-    order = np.lexsort((cell[:, 2], cell[:, 1], cell[:, 0]))
-    cell, pos, sig, val, amp, vox = cell[order], pos[order], sig[order], val[order], amp[order], vox[order]
-    if m:
-        new = np.ones(m, bool)
-        new[1:] = np.any(cell[1:] != cell[:-1], axis=1)
-        starts = np.flatnonzero(new)
-    else:
-        starts = np.zeros(0, np.int64)
-    origins = cell[starts].astype(np.int32)
-    group_start = np.append(starts, m).astype(np.int64)
-    offsets = (pos - np.repeat(origins, np.diff(group_start), axis=0)).astype(np.float32)
-    s = obj.gaussvdb if hasattr(obj, "gaussvdb") else None
-    return GaussianSet(origins.reshape(-1, 3), group_start, offsets, np.ascontiguousarray(sig, np.float32),
-                       np.ascontiguousarray(val, np.float32), np.ascontiguousarray(amp, np.float32),
-                       np.ascontiguousarray(vox, np.int32),
-                       grid_class=(s.grid_class if s is not None and s.grid_class else "fog_volume"),
-                       lod=lod, n_leaf_groups=len(origins))
-
-
 def read_gaussians(obj, lod, depsgraph=None):
-    """The object's Gaussians at one LOD, through the importer's reader when it exists."""
-    try:
-        from . import importer
-    except ImportError:
-        importer = None
-    reader = getattr(importer, "gaussian_set_from_object", None)
-    if reader is not None:
-        return reader(obj, lod, depsgraph=depsgraph)
-    return gaussian_set_from_points(obj, lod)
+    """The object's Gaussians at one LOD: the point-cloud schema's reader (io/schema.py)."""
+    return schema.gaussian_set_from_object(obj, lod, depsgraph=depsgraph)
 
 
 def source_grid(obj, path=None):
@@ -249,9 +166,7 @@ def _frame_matrix(obj, matrix_world, frame_i2w):
     domain moves): placed by the object's matrix times the change of transform."""
     if frame_i2w is None:
         return matrix_world
-    from .importer import stored_index_to_world
-
-    own = stored_index_to_world(obj)
+    own = schema.stored_index_to_world(obj)
     if np.array_equal(own, frame_i2w):
         return matrix_world
     return matrix_world @ np.linalg.inv(own) @ np.asarray(frame_i2w, np.float64)
@@ -399,7 +314,7 @@ class SceneSync:
                 continue
             if not inst.show_self:
                 continue
-            lod = chosen_lod(orig, self.viewport)
+            lod = schema.active_lod(orig, render=not self.viewport)
             e = self._entry(ob, lod, mode == "reference", depsgraph)
             seen.add(orig.name)
             mw = np.array(inst.matrix_world, np.float64)

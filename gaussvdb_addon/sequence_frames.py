@@ -179,27 +179,19 @@ def convert_frame(path, grid, lod, weights="field", level_set_band=True, vector_
     """Convert one frame's grid at one LOD: (GaussianSet as an import of that file alone would
     read it, value figures, index_to_world, error text, the converted set itself). A grid absent
     or empty in this frame gives (None, None, None, '', None): nothing to draw, no error."""
-    from ..kernels import vdb
-    from . import importer
+    from ..kernels import pipeline
+    from . import kernel_cache
+    from .io import schema
 
+    kernel_cache.announce("vdb", "lod")
     t0 = time.perf_counter()
-    try:
-        converted = importer.convert_file(path, [grid], [lod], weights, level_set_band,
-                                          vector_magnitude, compute_error=False)
-    except importer.ImportError_ as err:
-        try:  # an empty or absent grid is not an error, a file that cannot be read is
-            topo = vdb.read_topology(path)
-        except (vdb.VDBFormatError, OSError, MemoryError) as why:
-            return None, None, None, f"cannot read {os.path.basename(path)}: " \
-                                     f"{getattr(why, 'reason', None) or why}", None
-        g = next((g for g in topo.grids if g.name == grid), None)
-        if g is None or not g.active_voxels:
-            return None, None, None, "", None
-        return None, None, None, str(err), None
-    cg = next(c for c in converted if c.name == grid)
+    cg, error = pipeline.convert_frame(path, grid, lod, weights, level_set_band, vector_magnitude,
+                                       index_limit=schema.ORIGIN_LIMIT)
+    if cg is None:
+        return None, None, None, error, None
     STATS["converted"] += 1
     STATS["seconds_convert"] += time.perf_counter() - t0
-    return (importer.converted_gaussian_set(cg), cg.values or None, cg.index_to_world, "",
+    return (schema.converted_gaussian_set(cg), cg.values or None, cg.index_to_world, "",
             cg.lods[0].gset)
 
 

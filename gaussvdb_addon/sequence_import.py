@@ -18,6 +18,7 @@ import os
 
 import numpy as np
 
+from ..kernels import pipeline
 from ..kernels import sequence as seq
 from . import importer
 from .importer import ImportError_
@@ -90,7 +91,7 @@ def _frame_pass(pat, present, wanted, progress):
             holds.setdefault(g.name, []).append(n)
             if g.grid_class != "level_set":
                 figures.setdefault(g.name, {})[n] = voxel_stats(g)
-            lo, hi = importer._leaf_box(g)
+            lo, hi = pipeline.leaf_box(g)
             blo, bhi = boxes.get(g.name, (lo, hi))
             boxes[g.name] = (np.minimum(blo, lo), np.maximum(bhi, hi))
     return figures, boxes, holds, names, unreadable
@@ -104,7 +105,7 @@ def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="
     ``tolerance``: the adaptive LOD's (frames converted later use the default)."""
     pat, present = sequence_of(path, numbers)
     skipped = [] if skipped is None else skipped
-    wanted = importer.split_names(grids)
+    wanted = pipeline.split_names(grids)
     report = importer._Progress(progress) if progress is not None else None
     try:
         if wanted is None:  # defaults per cache layout, from the first frame that can be read
@@ -115,7 +116,7 @@ def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="
                     names = [g.name for g in vdb.read_topology(pat.path(n)).grids]
                 except (vdb.VDBFormatError, OSError):
                     continue
-                wanted, left_out = importer.default_grids(names)
+                wanted, left_out = pipeline.default_grids(names)
                 skipped.extend(left_out)
                 break
         figures, boxes, holds, names, unreadable = _frame_pass(pat, present, wanted, report)
@@ -141,7 +142,7 @@ def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="
             if report is not None:
                 report(0.5 + 0.5 * k / len(chosen), f"{name}: converting frame {shown}")
             if cancel is not None and cancel():
-                raise importer.ImportCancelled()
+                raise pipeline.ConversionCancelled()
             cg = next(c for c in importer.convert_file(
                 pat.path(shown), [name], lods, weights, level_set_band, vector_magnitude, max_bytes,
                 compute_error, None, cancel, None, tolerance=tolerance) if c.name == name)

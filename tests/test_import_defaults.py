@@ -27,7 +27,7 @@ def test_mantaflow_cache_imports_density_by_default(scene, path):
     vdb = _mod("kernels.vdb")
     names = [g.name for g in vdb.read_topology(path).grids]
     assert {"density", "shadow", "flame", "velocity"} <= set(names)
-    assert imp.cache_layout(names) == "mantaflow"
+    assert _mod("kernels.pipeline").cache_layout(names) == "mantaflow"
     skipped = []
     objs = imp.import_vdb(path, lods=("low",), compute_error=False, collection=scene.collection,
                           skipped=skipped)
@@ -49,8 +49,9 @@ def test_mantaflow_grids_the_user_asks_for(scene):
 
 def test_other_files_import_every_scalar_grid(scene):
     imp = _mod("gaussvdb_addon.importer")
-    assert imp.cache_layout(["surface"]) == ""
-    assert imp.cache_layout(["density", "temperature"]) == ""  # density alone is no Mantaflow sign
+    pipeline = _mod("kernels.pipeline")
+    assert pipeline.cache_layout(["surface"]) == ""
+    assert pipeline.cache_layout(["density", "temperature"]) == ""  # density alone: no Mantaflow sign
     assert imp.default_grids(["density", "temperature"]) == (None, [])
     if os.path.isfile(BUNNY):
         assert imp.default_grids_hint(BUNNY) == "Empty Grids: every scalar grid (surface)"

@@ -78,7 +78,8 @@ def test_failure_while_creating_datablocks_removes_them(scene, bpy_module, monke
     def broken(objs):
         raise RuntimeError("simulated failure in object.convert")
 
-    monkeypatch.setattr(imp, "_convert_to_pointclouds", broken)
+    datablocks = importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.io.datablocks")
+    monkeypatch.setattr(datablocks, "_convert_to_pointclouds", broken)
     with pytest.raises(RuntimeError, match="simulated"):
         imp.import_vdb(SAMPLE, grids=["density"], lods=("low",), compute_error=False)
     assert _ids(bpy) == (0, 0, 0)

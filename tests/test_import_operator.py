@@ -19,6 +19,10 @@ def _mods():
     return imp, vdb, lod
 
 
+def _schema():
+    return importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.io.schema")
+
+
 def check_object_matches_kernels(obj, grid, lods, weights="field", level_set_band=True):
     """Attribute names, Blender types, counts and values equal what build_lod returns."""
     imp, _, lod = _mods()
@@ -38,7 +42,7 @@ def check_object_matches_kernels(obj, grid, lods, weights="field", level_set_ban
     assert types == want
     assert obj.gaussvdb.lods == ",".join(lods)
     assert np.allclose(np.asarray(obj.matrix_world), grid.index_to_world, rtol=1e-6, atol=1e-6)
-    attrs = imp.read_attributes(obj)
+    attrs = _schema().read_attributes(obj)
     at = 0
     for i, s in enumerate(sets):
         sl = slice(at, at + s.count)
@@ -102,7 +106,7 @@ def test_sample_every_preset_and_status_message(scene, bpy_module):
     # Viewport LOD coarsest, Render LOD finest (like Subdivision's levels); both editable.
     assert obj.gaussvdb.viewport_lod == "low" and obj.gaussvdb.render_lod == lod.PRESETS[-1]
     obj.gaussvdb.viewport_lod = "medium"
-    assert imp.active_lod(obj) == "medium" and imp.active_lod(obj, render=True) == lod.PRESETS[-1]
+    assert _schema().active_lod(obj) == "medium" and _schema().active_lod(obj, render=True) == lod.PRESETS[-1]
 
 
 def test_operator_reports_status_and_selects(scene, bpy_module):

@@ -75,6 +75,10 @@ def _imp():
     return importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.importer")
 
 
+def _schema():
+    return importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.io.schema")
+
+
 @pytest.mark.parametrize("level_set", [False, True], ids=["fog", "level_set"])
 def test_oblique_transform_lands_where_blender_puts_the_volume(scene, bpy_module, tmp_path, level_set):
     bpy = bpy_module
@@ -85,7 +89,7 @@ def test_oblique_transform_lands_where_blender_puts_the_volume(scene, bpy_module
     obj = objs[0]
     m = oblique_matrix()
     np.testing.assert_allclose(np.asarray(obj.matrix_world), m, rtol=0, atol=1e-6)
-    np.testing.assert_allclose(imp.stored_index_to_world(obj), m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(_schema().stored_index_to_world(obj), m, rtol=0, atol=1e-12)
     b_lo, b_hi = blender_volume_box(bpy, path)
     g_lo, g_hi = gaussvdb_leaf_box(objs)
     np.testing.assert_allclose(g_lo, b_lo, atol=1e-4)
@@ -94,7 +98,7 @@ def test_oblique_transform_lands_where_blender_puts_the_volume(scene, bpy_module
     # Every Gaussian centre lies in Blender's box; the dense fog block fills its leaves, so the
     # High LOD's 2^3 blocks cover exactly the voxel box = Blender's box (within half a voxel).
     mw = np.asarray(obj.matrix_world)
-    attrs = imp.read_attributes(obj)
+    attrs = _schema().read_attributes(obj)
     world = attrs["position"].astype(np.float64) @ mw[:3, :3].T + mw[:3, 3]
     assert np.all(world >= b_lo - 1e-4) and np.all(world <= b_hi + 1e-4)
     if not level_set:
@@ -125,7 +129,8 @@ def test_moving_the_object_moves_the_gaussians(scene, bpy_module):
 def test_shared_files_match_blender_volume_box(scene, bpy_module, path):
     bpy = bpy_module
     imp = _imp()
-    every = [g.name for g in imp._kernels()[0].read_topology(path).grids]  # as Blender's box
+    vdb = importlib.import_module(ADDON_MODULE + ".kernels.vdb")
+    every = [g.name for g in vdb.read_topology(path).grids]  # as Blender's box
     objs = imp.import_vdb(path, grids=every, lods=("low",), vector_magnitude=True,
                           compute_error=False)
     b_lo, b_hi = blender_volume_box(bpy, path)

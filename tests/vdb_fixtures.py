@@ -474,3 +474,16 @@ def write_float_sized_vec3_root(src, dst, *, offsets=True):
             root += [origin, value[:1].tobytes(), bytes([active])]
         return head, b"".join(root) + topo[c.pos:], bufs
     return _rewrite(src, dst, edit, offsets=offsets)
+
+
+def write_mantaflow_like(path, shape=(24, 20, 16)):
+    """Grids named as a Mantaflow cache's, ``shadow`` first (a domain-wide constant -1, as
+    Blender leaves it unbaked), then heat, density and an empty flame grid."""
+    ov = openvdb()
+    rng = np.random.default_rng(7)
+    density = rng.random(shape, dtype=np.float32) * (np.arange(shape[0])[:, None, None] < 12)
+    grids = [_float_grid(ov, "shadow", np.full(shape, -1.0, np.float32)),
+             _float_grid(ov, "heat", 0.5 * density), _float_grid(ov, "density", density),
+             _float_grid(ov, "flame", np.zeros(shape, np.float32))]
+    ov.write(str(path), grids=grids)
+    return path

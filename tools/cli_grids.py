@@ -1,5 +1,7 @@
 """Which grid of a .vdb file `render` and `convert` use, decided from the topology alone (cheap,
-before Blender starts or kernels load); when none can be used, the refusal says why per grid."""
+before Blender starts or kernels load); when none can be used, the refusal says why per grid.
+The default is the import's (kernels.pipeline.default_grids: a Mantaflow cache gives density),
+the first of those that can be used."""
 from __future__ import annotations
 
 from cli_errors import InputError
@@ -15,8 +17,10 @@ def unusable(grid, vector_magnitude=False):
 
 
 def choose_grid(path, grid=None, vector_magnitude=False) -> str:
-    """The named grid, or the first usable one; InputError naming the file and each grid's reason.
-    A file the reader refuses raises its VDBFormatError (which names the file and byte offset)."""
+    """The named grid, or the first usable default one; InputError naming the file and each
+    grid's reason. A file the reader refuses raises its VDBFormatError (which names the file and
+    byte offset)."""
+    from kernels.pipeline import default_grids
     from kernels.vdb import read_topology
 
     topo = read_topology(path)
@@ -30,7 +34,10 @@ def choose_grid(path, grid=None, vector_magnitude=False) -> str:
         if grid in reasons:
             raise InputError(f"grid {grid!r} of {path} cannot be used: {reasons[grid]}")
         return grid
-    usable = [name for name in listed if name not in reasons]
+    wanted, left_out = default_grids(listed)
+    reasons.update((n, "left out by default in a Mantaflow cache (name it with --grid)")
+                   for n, _ in left_out if n not in reasons)
+    usable = [name for name in (listed if wanted is None else wanted) if name not in reasons]
     if not usable:
         why = "; ".join(f"{n}: {r}" for n, r in reasons.items()) or "the file holds no grids"
         raise InputError(f"no scalar grid in {path} ({why})")

@@ -2,7 +2,8 @@
 [--tolerance T [--max-error E]] [--out F.npz] [--json]`, or a sequence: `./gaussvdb convert
 'DIR/name_####.vdb' [--frames A-B] --lod PRESET --cache-dir DIR [--json]`
 
-Reads one grid (default: the first scalar grid with active voxels), builds its Gaussians,
+Reads one grid (default: the first scalar grid with active voxels; a Mantaflow cache: density),
+builds its Gaussians through kernels.pipeline (the add-on's import runs the same conversion),
 measures the field error and prints one JSON object (indented; one line with --json). With
 `--lod adaptive` the object also says whether the tolerance was met (and a warning on stderr says
 what was met when it was not). --out
@@ -20,6 +21,7 @@ import json
 import os
 import sys
 import time
+import warnings
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
 
@@ -31,34 +33,37 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
     import cli_grids
     import numpy as np
 
-    from kernels.lod import build_lod, encode_compact, encoded_nbytes, field_error, paper_model_bytes
-    from kernels.vdb import read_vdb, sanitize_nonfinite
+    from kernels import pipeline
+    from kernels.lod import encode_compact, encoded_nbytes, paper_model_bytes
 
     name = cli_grids.choose_grid(path, grid, vector_magnitude)
-    t0 = time.perf_counter()
-    g = read_vdb(path, grids=[name]).grids[0]
-    seconds_read = time.perf_counter() - t0
-    nonfinite = sanitize_nonfinite(g)  # NaN/Inf voxels become inactive (reported below)
-    if nonfinite:
-        print(f"gaussvdb convert: warning: {nonfinite:,} NaN/Inf voxels of grid {g.name!r} made inactive",
-              file=sys.stderr)
-    t0 = time.perf_counter()
-    gs = build_lod(g, lod, weights, level_set_band=level_set_band, **thresholds)
-    seconds_convert = time.perf_counter() - t0
+    with warnings.catch_warnings():  # NaN/Inf voxels: said in one line below
+        warnings.filterwarnings("ignore", message=".*non-finite", category=RuntimeWarning)
+        try:
+            cg = pipeline.convert_file(path, [name], [lod], weights, level_set_band, vector_magnitude,
+                                       compute_error=error, thresholds=thresholds,
+                                       value_figures=False)[0]
+        except pipeline.ConversionError as err:
+            raise cli_errors.InputError(str(err)) from err
+    if cg.nonfinite_voxels:
+        print(f"gaussvdb convert: warning: {cg.nonfinite_voxels:,} NaN/Inf voxels of grid {cg.name!r} "
+              "made inactive", file=sys.stderr)
+    cl = cg.lods[0]
+    gs = cl.gset
     enc = encode_compact(gs)
     nbytes = encoded_nbytes(enc)
     res = {
-        "file": os.path.basename(path), "grid": g.name, "class": g.grid_class, "lod": lod,
-        "weights": weights, "active_voxels": int(g.active_voxels), "leaves": int(len(g.leaf_origins)),
-        "tiles": int(np.count_nonzero(g.tile_active)), "gaussians": gs.count,
+        "file": os.path.basename(path), "grid": cg.name, "class": cg.grid_class, "lod": lod,
+        "weights": weights, "active_voxels": cg.active_voxels, "leaves": cg.leaves,
+        "tiles": cg.tiles, "gaussians": gs.count,
         "spheres": gs.n_spheres, "ellipsoids": gs.n_ellipsoids, "bytes": nbytes,
         "bytes_per_gaussian": nbytes / gs.count if gs.count else 0.0,
-        "paper_model_bytes": paper_model_bytes(gs), "seconds_read": seconds_read,
-        "seconds_convert": seconds_convert,
-        "mvoxels_per_second": g.active_voxels / (seconds_read + seconds_convert) / 1e6,
+        "paper_model_bytes": paper_model_bytes(gs), "seconds_read": cg.seconds_read,
+        "seconds_convert": cl.seconds,
+        "mvoxels_per_second": cg.active_voxels / (cg.seconds_read + cl.seconds) / 1e6,
         "kept_voxels": int(gs.voxels.astype(np.int64).sum()),
         "level_set_band": bool(gs.params.get("level_set_band", False)),
-        "nonfinite_voxels": nonfinite,
+        "nonfinite_voxels": cg.nonfinite_voxels,
     }
     if lod == "adaptive":
         p = gs.params
@@ -67,11 +72,13 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
                    achieved_max_abs=p["achieved_max_abs"], rounds=p["rounds"])
         if not p["tolerance_met"]:
             bound = f"NRMSE {p['tolerance']:g}" + (f", max {p['max_error']:g}" if p["max_error"] else "")
-            print(f"gaussvdb convert: warning: tolerance ({bound}) not met on grid {g.name!r}: "
+            print(f"gaussvdb convert: warning: tolerance ({bound}) not met on grid {cg.name!r}: "
                   f"reached NRMSE {p['achieved_nrmse']:.4g}, max {p['achieved_max_abs']:.4g} "
                   "with a Gaussian per voxel where the error is", file=sys.stderr)
     if error:
-        e = gs.params.get("field_error") or field_error(g, gs)  # adaptive: measured while building
+        e = cl.error
+        if not e:
+            raise MemoryError  # the field error could not be measured
         res.update(field_rmse=e["rmse"], field_nrmse=e["nrmse"], field_max_abs=e["max_abs"],
                    field_nrmse_denominator=e["nrmse_denominator"], field_reference=e["reference"],
                    field_k_sigma=e["k_sigma"], seconds_error=e["seconds"])
@@ -85,13 +92,12 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
 
 def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magnitude=False,
                      level_set_band=True) -> dict:
-    """Every frame of a sequence into the add-on's disk cache (kernels.sequence.write_frame)."""
+    """Every frame of a sequence into the add-on's disk cache (kernels.sequence.write_frame),
+    each frame converted as the add-on converts one (kernels.pipeline.convert_frame)."""
     import cli_grids
 
+    from kernels import pipeline
     from kernels import sequence as seq
-    from kernels.lod import build_lod
-    from kernels.render.transfer import voxel_stats
-    from kernels.vdb import VDBFormatError, read_topology, read_vdb, sanitize_nonfinite
 
     pat = seq.parse(os.path.abspath(pattern))
     if pat is None:
@@ -104,7 +110,7 @@ def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magn
         if not present:
             raise cli_errors.InputError(f"no frames of {pat.text} between {frames[0]} and {frames[-1]}")
     name, last = None, None
-    for n in present:  # the grid: named, or the first usable one of the first frame with one
+    for n in present:  # the grid: named, or the default one of the first frame with one
         try:
             name = cli_grids.choose_grid(pat.path(n), grid, vector_magnitude)
             break
@@ -118,26 +124,22 @@ def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magn
         path = pat.path(n)
         item = {"frame": n, "file": os.path.basename(path), "vdb_bytes": os.path.getsize(path)}
         t0 = time.perf_counter()
-        try:
-            g = next((g for g in read_vdb(path, grids=[name]).grids if g.name == name), None)
-            if g is None:
-                read_topology(path)  # the grid is absent, the file is fine
-        except (VDBFormatError, OSError) as err:
-            msg = f"frame {n}: cannot read {os.path.basename(path)}: {getattr(err, 'reason', None) or err}"
+        with warnings.catch_warnings():  # NaN/Inf voxels made inactive, as the add-on does
+            warnings.filterwarnings("ignore", message=".*non-finite", category=RuntimeWarning)
+            cg, why = pipeline.convert_frame(path, name, lod, weights, level_set_band, vector_magnitude)
+        if why:
+            msg = f"frame {n}: {why}"
             errors.append(msg)
             item["error"] = msg
             print(f"gaussvdb convert: error: {msg}", file=sys.stderr)
             items.append(item)
             continue
-        gs, values = None, None
-        if g is not None and g.active_voxels:
-            sanitize_nonfinite(g)  # as the importer does
-            values = voxel_stats(g) if g.grid_class != "level_set" else {}
-            gs = build_lod(g, lod, weights, level_set_band=level_set_band)
+        gs = cg.lods[0].gset if cg is not None else None
+        values = (cg.values or None) if cg is not None else None
         out = os.path.join(cache_dir, seq.cache_name(path, name, lod, weights, level_set_band,
                                                      vector_magnitude))
         item.update(seconds=time.perf_counter() - t0, gaussians=gs.count if gs is not None else 0,
-                    cache_bytes=seq.write_frame(out, gs, values or None, path, name, lod),
+                    cache_bytes=seq.write_frame(out, gs, values, path, name, lod),
                     cache_file=os.path.basename(out))
         items.append(item)
     done = [i for i in items if "cache_bytes" in i]
@@ -155,7 +157,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("file", help="a .vdb file, or a sequence: 'DIR/name_####.vdb'")
     ap.add_argument("--frames", help="frames of a sequence: 35-50 (default: every frame found)")
     ap.add_argument("--cache-dir", help="a sequence: the disk-cache folder to write")
-    ap.add_argument("--grid", help="grid name (default: the first scalar grid with active voxels)")
+    ap.add_argument("--grid", help="grid name (default: the first scalar grid with active voxels; "
+                         "a Mantaflow cache: density)")
     ap.add_argument("--vector-magnitude", action="store_true",
                     help="vec3 grids (velocity) count as their magnitude, as in the importer")
     ap.add_argument("--lod", choices=PRESETS, default="medium")

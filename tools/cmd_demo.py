@@ -66,17 +66,13 @@ def render_pngs(bpy, objs, args) -> list:
     cmd_render.quiet_render(final_render, scene, os.path.join(os.path.abspath(args.out), "warmup.png"))
     paths = [f"(render warm-up {time.perf_counter() - t0:.2f} s: kernels loaded or compiled)"]
     r.resolution_x, r.resolution_y = width, height
-    for name in importer_lods(obj):
+    for name in addon_module("gaussvdb_addon.io.schema").lod_names(obj):
         obj.gaussvdb.render_lod = name
         path = os.path.join(os.path.abspath(args.out), f"{obj.gaussvdb.grid_name}_{name}.png")
         stats = cmd_render.quiet_render(final_render, scene, path)
         paths.append(f"{path} ({stats.get('gaussians', 0):,} Gaussians, "
                      f"{stats.get('seconds_render', 0.0):.2f} s)")
     return paths
-
-
-def importer_lods(obj) -> list:
-    return [n for n in obj.gaussvdb.lods.split(",") if n]
 
 
 def run(args) -> dict:

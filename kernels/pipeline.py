@@ -1,0 +1,334 @@
+"""The one conversion: file -> grids -> LODs -> errors, for every caller (the Blender import and
+its sequences, `gaussvdb convert` and `render`, the benchmarks).
+
+    cgs = convert_file("smoke.vdb", lods=("low", "medium"), progress=print, cancel=None)
+    cgs[0].lods[1].gset                       # the Medium GaussianSet of the first grid
+
+``convert_steps`` is the same as a generator that yields (fraction, text) before each step, so
+a modal operator can run one step per timer event; ``run`` drives one with a progress callback
+and a cancel test. Nothing here knows Blender: errors are ``ConversionError`` with a one-line
+message, and the kernels (numba) load on first use, not when this module is imported.
+
+The default grids are decided here once (``default_grids``), per known cache layout: a Mantaflow
+cache gives density (its ``shadow`` grid is a domain-wide constant Blender does not bake).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class ConversionError(Exception):
+    """A conversion failed; the message says why in one line. Nothing was created."""
+
+
+class ConversionCancelled(ConversionError):
+    """The cancel callback said so. Nothing was created."""
+
+    def __init__(self, message="import cancelled: nothing was created"):
+        super().__init__(message)
+
+
+# -- which grids -----------------------------------------------------------------------------------
+# Grids of a Blender Mantaflow (smoke/fire) cache. `shadow` is a domain-wide constant -1 that
+# Blender does not bake: taking it by default would cover the whole domain.
+MANTAFLOW_GRIDS = {"density", "heat", "temperature", "flame", "fuel", "react", "shadow", "velocity",
+                   "color_r", "color_g", "color_b", "density_noise", "flame_noise", "fuel_noise",
+                   "react_noise", "color_r_noise", "color_g_noise", "color_b_noise"}
+MANTAFLOW_DEFAULT = ("density",)
+MANTAFLOW_LEFT_OUT = "Mantaflow cache: only density by default (name it under Grids to import it)"
+
+
+def cache_layout(names) -> str:
+    """'mantaflow' when the grid names are a Mantaflow cache's (density beside two or more of
+    its other grids), else '' (an ordinary file)."""
+    names = set(names)
+    if "density" in names and len(names & (MANTAFLOW_GRIDS - {"density"})) >= 2:
+        return "mantaflow"
+    return ""
+
+
+def default_grids(names):
+    """The grids taken when the caller names none: (wanted, or None for every scalar grid;
+    [(name, reason) left out])."""
+    if cache_layout(names) == "mantaflow":
+        wanted = [n for n in MANTAFLOW_DEFAULT if n in names]
+        return wanted, [(n, MANTAFLOW_LEFT_OUT) for n in names if n not in wanted]
+    return None, []
+
+
+def split_names(text) -> list | None:
+    """'density, temperature' -> ['density', 'temperature']; '' -> None (the default grids)."""
+    if not text:
+        return None
+    if not isinstance(text, str):
+        return list(text) or None
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    return names or None
+
+
+def order_lods(lods) -> list:
+    """LOD names in the kernels' preset order (coarse first), validated, duplicates dropped."""
+    from .lod.build import PRESETS
+
+    if isinstance(lods, str):
+        lods = [lods]
+    lods = list(lods or ())
+    bad = [name for name in lods if name not in PRESETS]
+    if bad:
+        raise ConversionError(f"unknown LOD preset {bad[0]!r}; choose from {', '.join(PRESETS)}")
+    if not lods:
+        raise ConversionError("choose at least one LOD preset")
+    return [p for p in PRESETS if p in lods]
+
+
+def lod_label(name: str) -> str:
+    from .lod.build import PRESET_LABELS
+
+    return PRESET_LABELS.get(name, name.title())
+
+
+# -- results ---------------------------------------------------------------------------------------
+@dataclass
+class ConvertedLOD:
+    name: str
+    gset: object
+    seconds: float
+    error: dict = field(default_factory=dict)  # field_error's scalar figures ({} when not measured)
+
+
+@dataclass
+class ConvertedGrid:
+    filepath: str
+    name: str
+    grid_class: str
+    value_type: str
+    index_to_world: np.ndarray
+    leaf_box: tuple  # (min, max) index-space box of the leaves and active tiles (voxel corners)
+    lods: list = field(default_factory=list)  # [ConvertedLOD]
+    nonfinite_voxels: int = 0  # NaN/Inf voxels made inactive before conversion
+    values: dict = field(default_factory=dict)  # kernels.render.voxel_stats: the auto range of any LOD
+    seconds_compile: float = 0.0  # kernels compiled (or loaded from the cache) before converting
+    sequence: dict = None  # a sequence's settings and per-frame figures (the Blender layer's)
+    seconds_read: float = 0.0  # reading the file's chosen grids
+    active_voxels: int = 0
+    leaves: int = 0
+    tiles: int = 0  # active tiles
+
+    @property
+    def is_level_set(self) -> bool:
+        return self.grid_class == "level_set"
+
+
+def leaf_box(grid):
+    """Index box covered by the leaf nodes and active tiles (what Blender's Volume bounds show)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    if len(grid.leaf_origins):
+        o = np.asarray(grid.leaf_origins, np.float64)
+        lo = np.minimum(lo, o.min(0) - 0.5)
+        hi = np.maximum(hi, o.max(0) + 7.5)
+    act = np.asarray(grid.tile_active, bool)
+    if act.any():
+        o = np.asarray(grid.tile_origins, np.float64)[act]
+        s = np.asarray(grid.tile_sizes, np.float64)[act][:, None]
+        lo = np.minimum(lo, (o - 0.5).min(0))
+        hi = np.maximum(hi, (o + s - 0.5).max(0))
+    return lo, hi
+
+
+_WARM = set()  # (grid class, LOD, weights, band, error) converted once in this process
+
+
+def _warm_up(grid, lods, weights, level_set_band, compute_error) -> float:
+    """Convert a few leaves of ``grid`` first, so that compiling (or loading) the kernels on
+    first use is timed apart from the LODs' own conversion times; seconds it took."""
+    from . import lod
+
+    todo = [n for n in lods if (grid.grid_class, n, weights, level_set_band, compute_error) not in _WARM]
+    if not todo or grid.leaf_values is None or not len(grid.leaf_origins):
+        return 0.0
+    k = min(8, len(grid.leaf_origins))
+    masks = np.ascontiguousarray(grid.leaf_masks[:k])
+    small = dataclasses.replace(
+        grid, leaf_origins=np.ascontiguousarray(grid.leaf_origins[:k]), leaf_masks=masks,
+        leaf_values=np.ascontiguousarray(grid.leaf_values[:k]), tile_origins=grid.tile_origins[:0],
+        tile_sizes=grid.tile_sizes[:0], tile_values=grid.tile_values[:0],
+        tile_active=grid.tile_active[:0],
+        active_voxels=int(np.unpackbits(masks.view(np.uint8)).sum()))
+    t0 = time.perf_counter()
+    for name in todo:
+        gset = lod.build_lod(small, name, weights, level_set_band=level_set_band)
+        if compute_error:
+            lod.field_error(small, gset)
+        _WARM.add((grid.grid_class, name, weights, level_set_band, compute_error))
+    return time.perf_counter() - t0
+
+
+# -- the steps -------------------------------------------------------------------------------------
+def convert_lod(grid, name, weights="field", level_set_band=True, compute_error=True,
+                thresholds=None) -> ConvertedLOD:
+    """One LOD of one grid, timed, with its field error (scalar figures) when asked."""
+    from . import lod
+
+    t0 = time.perf_counter()
+    try:
+        gset = lod.build_lod(grid, name, weights, level_set_band=level_set_band, **(thresholds or {}))
+    except MemoryError as err:
+        raise ConversionError(f"{grid.name}: out of memory building the {name} LOD") from err
+    seconds = time.perf_counter() - t0
+    error = {}
+    if compute_error:
+        try:
+            error = measure_error(grid, gset)
+        except MemoryError:
+            error = {}
+    return ConvertedLOD(name, gset, seconds, error)
+
+
+def measure_error(grid, gset) -> dict:
+    """kernels.lod.field_error's scalar figures (the adaptive preset measured them while building)."""
+    from . import lod
+
+    measured = gset.params.get("field_error") or lod.field_error(grid, gset)
+    return {k: v for k, v in measured.items() if isinstance(v, (int, float, str))}
+
+
+def read_grids(filepath, wanted=None, vector_magnitude=False, max_bytes=None, skipped=None,
+               index_limit=None):
+    """The grids of ``filepath`` to convert (``wanted`` names, or the default grids) and the
+    seconds reading them took; ``skipped`` collects (grid, reason) for grids left out.
+    ``index_limit``: refuse grids reaching index coordinates this far from the origin."""
+    from . import vdb
+
+    base = os.path.basename(filepath)
+    skipped = [] if skipped is None else skipped
+    try:
+        if wanted is None:
+            wanted, left_out = default_grids([g.name for g in vdb.read_topology(filepath).grids])
+            skipped.extend(left_out)
+        t0 = time.perf_counter()
+        vfile = vdb.read_vdb(filepath, wanted, max_bytes=max_bytes)
+        seconds = time.perf_counter() - t0
+    except vdb.VDBFormatError as err:
+        raise ConversionError(f"cannot import {base}: {err.reason}"
+                              + (f" (grid {err.grid!r})" if err.grid else "")) from err
+    except MemoryError as err:
+        raise ConversionError(f"cannot import {base}: out of memory while reading") from err
+    skipped.extend(vfile.skipped)
+    chosen = []
+    for g in vfile.grids:
+        if g.value_type.startswith("vec3") and not vector_magnitude:
+            skipped.append((g.name, "vector grid (enable 'Vector Grids as Magnitude' to import it)"))
+        elif g.active_voxels == 0:
+            skipped.append((g.name, "empty grid (no active voxels)"))
+        else:
+            chosen.append(g)
+    if not chosen:
+        why = "; ".join(f"{n}: {r}" for n, r in skipped) or "the file holds no grids"
+        raise ConversionError(f"no scalar grid to import in {base} ({why})")
+    for g in chosen if index_limit else ():
+        if max(np.abs(g.bbox_min).max(), np.abs(g.bbox_max).max()) >= index_limit - 4096:
+            raise ConversionError(f"grid {g.name!r} of {base} reaches index coordinates beyond "
+                                  f"{index_limit:,}: too far from the origin to store exactly")
+    return chosen, seconds
+
+
+def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
+                  vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None, *,
+                  tolerance=0.02, thresholds=None, index_limit=None, value_figures=True):
+    """Generator: yields (fraction < 1, text) before each step; returns [ConvertedGrid].
+
+    ``grids``: names (a list or 'a, b'), or None for ``default_grids``. ``tolerance``: the
+    adaptive LOD's field NRMSE bound; ``thresholds``: kernels.lod.DEFAULTS overrides for every
+    LOD (they win over ``tolerance``). ``value_figures``: store voxel_stats (auto ranges).
+    """
+    from . import lod, vdb
+
+    lods = order_lods(lods)
+    if weights not in lod.WEIGHTS:
+        raise ConversionError(f"unknown weights {weights!r}; choose from {', '.join(lod.WEIGHTS)}")
+    filepath = os.path.abspath(os.path.expanduser(os.fspath(filepath)))
+    yield 0.0, f"reading {os.path.basename(filepath)}"
+    chosen, seconds_read = read_grids(filepath, split_names(grids), vector_magnitude, max_bytes,
+                                      skipped, index_limit)
+    steps = len(chosen) * len(lods)
+    out = []
+    k = 0
+    for g in chosen:
+        cg = ConvertedGrid(filepath, g.name, g.grid_class, g.value_type,
+                           np.asarray(g.index_to_world, np.float64), leaf_box(g),
+                           seconds_read=seconds_read, active_voxels=int(g.active_voxels),
+                           leaves=int(len(g.leaf_origins)), tiles=int(np.count_nonzero(g.tile_active)))
+        # NaN/Inf are no density: such voxels become inactive, counted, and the caller is warned.
+        cg.nonfinite_voxels = vdb.sanitize_nonfinite(g)
+        if cg.nonfinite_voxels:
+            warnings.warn(f"{os.path.basename(filepath)}: grid {g.name!r} has "
+                          f"{cg.nonfinite_voxels:,} non-finite (NaN/Inf) voxels; they were made "
+                          "inactive", RuntimeWarning, stacklevel=2)
+        if value_figures and g.grid_class != "level_set":  # level sets: coloured by position
+            from .render.transfer import voxel_stats
+
+            cg.values = voxel_stats(g)
+        cg.seconds_compile = _warm_up(g, lods, weights, level_set_band, compute_error)
+        for name in lods:
+            yield 0.05 + 0.95 * k / steps, f"{g.name}: {lod_label(name)} LOD"
+            k += 1
+            th = dict(tolerance=tolerance) if name == "adaptive" else {}
+            th.update(thresholds or {})
+            cg.lods.append(convert_lod(g, name, weights, level_set_band, compute_error, th))
+        out.append(cg)
+    return out
+
+
+def run(steps, progress=None, cancel=None):
+    """Drive a ``convert_steps`` generator: ``progress(fraction, text)`` before each step,
+    ConversionCancelled as soon as ``cancel()`` is true; returns what the generator returns."""
+    try:
+        while True:
+            try:
+                fraction, text = next(steps)
+            except StopIteration as stop:
+                return stop.value
+            if progress is not None:
+                progress(fraction, text)
+            if cancel is not None and cancel():
+                raise ConversionCancelled()
+    finally:
+        steps.close()
+
+
+def convert_file(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
+                 vector_magnitude=False, max_bytes=None, compute_error=True, progress=None,
+                 cancel=None, skipped=None, **options) -> list:
+    """Read and convert one file; [ConvertedGrid]. ``options``: those of ``convert_steps``."""
+    return run(convert_steps(filepath, grids, lods, weights, level_set_band, vector_magnitude,
+                             max_bytes, compute_error, skipped, **options), progress, cancel)
+
+
+def convert_frame(path, grid, lod, weights="field", level_set_band=True, vector_magnitude=False,
+                  index_limit=None):
+    """One grid of one frame of a sequence at one LOD, no error measured: (ConvertedGrid, '');
+    (None, '') when the grid is absent or empty in this frame (nothing to draw, no error);
+    (None, why) when the frame cannot be converted."""
+    from . import vdb
+
+    try:
+        converted = convert_file(path, [grid], [lod], weights, level_set_band, vector_magnitude,
+                                 compute_error=False, index_limit=index_limit)
+    except ConversionError as err:
+        try:  # an empty or absent grid is not an error, a file that cannot be read is
+            topo = vdb.read_topology(path)
+        except (vdb.VDBFormatError, OSError, MemoryError) as why:
+            return None, f"cannot read {os.path.basename(path)}: {getattr(why, 'reason', None) or why}"
+        g = next((g for g in topo.grids if g.name == grid), None)
+        if g is None or not g.active_voxels:
+            return None, ""
+        return None, str(err)
+    return next(c for c in converted if c.name == grid), ""
