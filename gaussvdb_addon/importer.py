@@ -558,7 +558,9 @@ def _settings_to_object(obj, cg, stats, options):
                "seconds_compile": cg.seconds_compile}
     if cg.sequence:
         figures["sequence"] = cg.sequence["figures"]
-    st.stats_json = json.dumps(figures)
+    from . import lod_figures
+
+    lod_figures.store(st, figures)
     names = [cl.name for cl in cg.lods]
     # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
     st.viewport_lod = names[0]
@@ -672,10 +674,9 @@ def _fmt_bytes(n):
 
 
 def object_stats(obj) -> list:
-    try:
-        return json.loads(obj.gaussvdb.stats_json or "{}").get("lods", [])
-    except ValueError:
-        return []
+    from . import lod_figures
+
+    return lod_figures.as_dicts(obj.gaussvdb)
 
 
 def status_message(objs, skipped=()) -> str:
@@ -891,8 +892,11 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     try:
         obj.data = new.data
         # (the source path stays as the user left it: relative, or found elsewhere)
-        for key in ("grid_class", "value_type", "lods", "stats_json", "layout_version"):
+        for key in ("grid_class", "value_type", "lods", "layout_version"):
             setattr(st, key, getattr(new.gaussvdb, key))
+        from . import lod_figures
+
+        lod_figures.copy(new.gaussvdb, st)
         st.index_to_world = new.gaussvdb.index_to_world
         st.leaf_box_min = new.gaussvdb.leaf_box_min
         st.leaf_box_max = new.gaussvdb.leaf_box_max

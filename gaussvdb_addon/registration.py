@@ -8,6 +8,7 @@ from .. import operators
 from ..kernels import cachedir, openvdb_binding
 from . import (
     engine,
+    lod_figures,
     object_panel,
     object_settings,
     presets,
@@ -18,7 +19,7 @@ from . import (
 )
 
 # Properties first (others point at them), panels last (they draw the rest).
-MODULES = (object_settings, source_path, render_settings, presets, operators, engine, render_panel,
+MODULES = (lod_figures, object_settings, source_path, render_settings, presets, operators, engine, render_panel,
            object_panel, transfer_ui)
 
 

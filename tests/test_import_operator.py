@@ -118,11 +118,11 @@ def test_operator_reports_status_and_selects(scene, bpy_module):
     assert all(o.gaussvdb.weights == "paper" for o in objs)
 
 
-def test_lod_items_match_kernels(addon):
-    mod = importlib.import_module(ADDON_MODULE + ".operators.import_vdb")
+def test_lod_items_match_kernels(addon, bpy_module):
+    items = bpy_module.ops.gaussvdb.import_vdb.get_rna_type().properties["lods"].enum_items
     _, _, lod = _mods()
-    assert tuple(i[0] for i in mod.LOD_ITEMS) == tuple(lod.PRESETS)
-    assert tuple(i[1] for i in mod.LOD_ITEMS) == tuple(lod.PRESET_LABELS[p] for p in lod.PRESETS)
+    assert tuple(i.identifier for i in items) == tuple(lod.PRESETS)
+    assert tuple(i.name for i in items) == tuple(lod.PRESET_LABELS[p] for p in lod.PRESETS)
 
 
 def test_menu_and_file_handler_registered(addon, bpy_module):

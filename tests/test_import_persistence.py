@@ -34,7 +34,7 @@ def test_save_reload_is_bit_exact(scene, bpy_module, tmp_path):
                           compute_error=False)
     objs[0].gaussvdb.render_lod = "low"
     before = {o.name: (_raw(o), np.asarray(o.matrix_world).copy(), o.gaussvdb.lods,
-                       o.gaussvdb.viewport_lod, o.gaussvdb.render_lod, o.gaussvdb.stats_json,
+                       o.gaussvdb.viewport_lod, o.gaussvdb.render_lod, o.gaussvdb.stats(),
                        o.gaussvdb.index_to_world) for o in objs}
     path = str(tmp_path / "saved.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
@@ -49,7 +49,7 @@ def test_save_reload_is_bit_exact(scene, bpy_module, tmp_path):
         assert _raw(o) == raw  # names, types and bytes
         assert np.array_equal(np.asarray(o.matrix_world), mw)
         assert (o.gaussvdb.lods, o.gaussvdb.viewport_lod, o.gaussvdb.render_lod) == (lods, vp, rl)
-        assert o.gaussvdb.stats_json == stats and o.gaussvdb.index_to_world == m
+        assert o.gaussvdb.stats() == stats and o.gaussvdb.index_to_world == m
     os.remove(path)
 
 

@@ -1,6 +1,6 @@
 """Gaussian LOD generation (issue 4): OpenVDB leaves and tiles -> axis-aligned Gaussians.
 
-Presets (command line names; Blender labels Low / Medium / High / Variance / Merged / Adaptive):
+Presets (names, labels and descriptions: kernels/lod_names.py, which registration reads without numba):
   low, medium, high  the paper's three spatial schemes (section 4.2.2)
   variance           variance-based intra-leaf clustering (recursive bisection)
   merged             inter-leaf clustering: `high` plus the 26-neighbourhood merge pass
