@@ -94,6 +94,10 @@ def test_reload_button_rereads_with_same_settings(scene, bpy_module, tmp_path):
     assert obj.gaussvdb.lods == "low,high" and obj.gaussvdb.weights == "paper"
     gs = imp.gaussian_set_from_object(obj, "low")
     assert gs.count == 2 and np.all(gs.values == np.float32(0.25))
+    # the per-LOD figures are the new file's (the collection moved onto the kept object)
+    assert [(s["lod"], s["count"]) for s in imp.object_stats(obj)] == [
+        (n, imp.gaussian_set_from_object(obj, n).count) for n in ("low", "high")]
+    assert gs.params["value_max"] == 0.25
     assert len(bpy.data.pointclouds) == 1 and not bpy.data.meshes
     # A broken file: Reload reports and changes nothing.
     with open(path, "wb") as f:
