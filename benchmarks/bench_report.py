@@ -18,8 +18,8 @@ and every render mode:
   matched emission-absorption material, at increasing sample counts: seconds and the same errors.
 Camera (fixed per dataset and grid): `Camera.frame_box` of the grid's world box (its active index
 bbox through index_to_world), looking along (0.35, 1, -0.3) (as `./gaussvdb render`), 50 mm lens on a
-36 mm sensor, margin 1.05. Transfer function: viridis through 32 ColorRamp stops (`ramp_stops`, the
-exact stops Cycles gets), alpha ramp 0 -> 1 over the grid's active value range, density
+36 mm sensor, margin 1.05. Transfer function: viridis through the add-on's 32 ColorRamp stops
+(`stops_from_table`, the exact stops Cycles gets), alpha ramp 0 -> 1 over the grid's active value range, density
 10 / (world box diagonal) per world unit (about 10 optical depths across the box at alpha 1).
 Level sets are rendered as occupancy (their reference is the reference mode's occupancy render);
 Cycles and VTK are skipped for them (a level set's signed distance has no emission-absorption
@@ -183,14 +183,14 @@ def setup_view(g, a):
     """World box, camera, transfer function for one grid (documented in the module docstring)."""
     from kernels.lod import value_range
     from kernels.render import Camera, TransferFunction
-    from kernels.render.colormaps import ramp_stops
+    from kernels.render.colormaps import colormap, stops_from_table
 
     m = np.asarray(g.index_to_world, np.float64)
     lo, hi = world_box(g, m)
     cam = Camera.frame_box(lo, hi, a.width, a.height, direction=VIEW)
     diag = float(np.linalg.norm(hi - lo))
     vmin, vmax = (0.0, 1.0) if g.grid_class == "level_set" else value_range(g)
-    pos, rgba = ramp_stops(COLORMAP, 32)
+    pos, rgba = stops_from_table(colormap(COLORMAP))
     tf = TransferFunction.from_ramp(pos, rgba, vmin, vmax, density=a.density / max(diag, 1e-12))
     return {"m": m, "lo": lo, "hi": hi, "cam": cam, "tf": tf, "vmin": float(vmin), "vmax": float(vmax),
                 "density": tf.density, "positions": pos, "colors": rgba, "diag": diag}

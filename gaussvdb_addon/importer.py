@@ -27,6 +27,7 @@ from ..kernels.pipeline import (  # noqa: F401  (the scripting API: importer.X)
     order_lods,
     split_names,
 )
+from . import lod_figures
 from .io.datablocks import build_objects
 from .io.schema import (  # noqa: F401  (the scripting API: importer.X)
     gaussian_set_from_object,
@@ -208,13 +209,6 @@ def import_files(context, paths, grids=None, lods=("medium",), weights="field",
     return objs, status_message(objs, skipped) + (f"; {note}" if note else "")
 
 
-def _fmt_bytes(n):
-    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
-        if n >= size:
-            return f"{n / size:.1f} {unit}"
-    return f"{int(n)} B"
-
-
 def status_message(objs, skipped=()) -> str:
     """'density: 366,112 Gaussians (Medium) in 0.41 s, field NRMSE 0.8%, 2.9 MB; ...'"""
     parts = []
@@ -229,7 +223,7 @@ def status_message(objs, skipped=()) -> str:
         text = f"{obj.gaussvdb.grid_name}: {counts} Gaussians ({labels}) in {secs:.2f} s"
         if all(e is not None for e in errs):
             text += ", field NRMSE " + " / ".join(f"{100 * e:.1f}%" for e in errs)
-        text += f", {_fmt_bytes(sum(s['bytes'] for s in stats))}"
+        text += f", {lod_figures.fmt_bytes(sum(s['bytes'] for s in stats))}"
         bad = json.loads(obj.gaussvdb.stats_json or "{}").get("nonfinite_voxels", 0)
         if bad:
             text += f", {bad:,} NaN/Inf voxels made inactive"
@@ -287,8 +281,9 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     try:
         obj.data = new.data
         # (the source path stays as the user left it: relative, or found elsewhere)
-        for key in ("grid_class", "value_type", "lods", "stats_json", "layout_version"):
+        for key in ("grid_class", "value_type", "lods", "layout_version"):
             setattr(st, key, getattr(new.gaussvdb, key))
+        lod_figures.copy(new.gaussvdb, st)
         st.index_to_world = new.gaussvdb.index_to_world
         st.leaf_box_min = new.gaussvdb.leaf_box_min
         st.leaf_box_max = new.gaussvdb.leaf_box_max

@@ -1,14 +1,14 @@
 """Object properties panel: source, class, LODs held, Viewport/Render LOD, Reload, clipping,
-per-LOD figures."""
+per-LOD figures (a UIList of Object.gaussvdb.lod_stats)."""
+
+import math
 
 import bpy
 
+from ..kernels import lod_names
+from . import lod_figures
 
-def _fmt_bytes(n):
-    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
-        if n >= size:
-            return f"{n / size:.1f} {unit}"
-    return f"{int(n)} B"
+FIGURE_COLUMNS = ("LOD", "Gaussians", "Memory", "NRMSE", "Time")
 
 
 def draw_clip(layout, settings):
@@ -17,6 +17,18 @@ def draw_clip(layout, settings):
     col.prop(settings, "clip_plane", text="Plane")
     col.prop(settings, "clip_box", text="Box")
     col.prop(settings, "clip_collection", text="Collection")
+
+
+class GAUSSVDB_UL_lod_stats(bpy.types.UIList):
+    """The LODs an object holds, one row of figures (FIGURE_COLUMNS) each."""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
+        row = layout.row(align=True)
+        row.label(text=lod_names.label(item.name))
+        row.label(text=f"{item.count:,}")
+        row.label(text=lod_figures.fmt_bytes(item.bytes))
+        row.label(text="-" if math.isnan(item.nrmse) else f"{100 * item.nrmse:.2f}%")
+        row.label(text=f"{item.seconds:.2f} s")
 
 
 class GAUSSVDB_PT_object(bpy.types.Panel):
@@ -56,21 +68,13 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
             layout.prop(settings, "level_set_style")
         draw_clip(layout, settings)
 
-        stats = settings.stats().get("lods", [])
-        if not stats:
+        if not len(settings.lod_stats):
             return
-        box = layout.box()
-        grid = box.grid_flow(row_major=True, columns=5, even_columns=True, align=True)
-        for head in ("LOD", "Gaussians", "Memory", "NRMSE", "Time"):
-            grid.label(text=head)
-        for s in stats:
-            grid.label(text=s.get("label", s.get("lod", "?")))
-            grid.label(text=f"{s.get('count', 0):,}")
-            grid.label(text=_fmt_bytes(s.get("bytes", 0)))
-            nrmse = s.get("nrmse")
-            grid.label(text="-" if nrmse is None else f"{100 * nrmse:.2f}%")
-            grid.label(text=f"{s.get('seconds', 0.0):.2f} s")
-
+        row = layout.row(align=True)
+        for head in FIGURE_COLUMNS:
+            row.label(text=head)
+        layout.template_list("GAUSSVDB_UL_lod_stats", "", settings, "lod_stats", settings,
+                             "lod_stats_index", rows=len(settings.lod_stats))
 
     @staticmethod
     def _draw_sequence(context, layout, settings, vol):
@@ -99,4 +103,4 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
         col.label(text=text, icon="FILE_VOLUME")
 
 
-CLASSES = (GAUSSVDB_PT_object,)
+CLASSES = (GAUSSVDB_UL_lod_stats, GAUSSVDB_PT_object)

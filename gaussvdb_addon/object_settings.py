@@ -4,6 +4,7 @@ The point attributes themselves are described in io/schema.py (and README "Point
 ``lods`` lists the LODs held in gs_lod order, ``viewport_lod``/``render_lod`` pick one of them like
 the Subdivision modifier's viewport and render levels. With ``use_scene_tf`` off the object's own
 transfer function (the TransferFunctionProps fields) colours it instead of the scene's.
+``lod_stats``: each LOD's figures from the import (lod_figures.py); ``stats_json`` the object's.
 Clipping (``clip_*``): Empties that cut the object (kernels/render/clip.py), in every mode.
 ``level_set_style``: level sets as lit surfaces (default) or translucent shells.
 """
@@ -13,6 +14,7 @@ import json
 import bpy
 from bpy.props import (
     BoolProperty,
+    CollectionProperty,
     EnumProperty,
     FloatVectorProperty,
     IntProperty,
@@ -20,11 +22,9 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import source_path
+from ..kernels import lod_names
+from . import lod_figures, source_path
 from .transfer_settings import TransferFunctionProps
-
-LOD_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
-              "merged": "Merged", "adaptive": "Adaptive"}
 
 
 def _tag(self, context):
@@ -40,11 +40,11 @@ _LOD_ITEM_CACHE = {}
 
 
 def lod_items(self, context):
-    key = self.lods or "medium"
+    key = self.lods or lod_names.DEFAULT
     items = _LOD_ITEM_CACHE.get(key)
     if items is None:
-        held = [name for name in key.split(",") if name] or ["medium"]
-        items = [(n, LOD_LABELS.get(n, n.title()), f"Draw the {LOD_LABELS.get(n, n)} LOD", i)
+        held = [name for name in key.split(",") if name] or [lod_names.DEFAULT]
+        items = [(n, lod_names.label(n), f"Draw the {lod_names.label(n)} LOD", i)
                  for i, n in enumerate(held)]
         _LOD_ITEM_CACHE[key] = items
     return items
@@ -112,7 +112,10 @@ class GaussVDBObjectSettings(ClipProps, SurfaceProps, TransferFunctionProps, bpy
                                       description="Index-space box of the grid's leaves and tiles")
     leaf_box_max: FloatVectorProperty(name="Leaf Box Max", size=3)
     layout_version: IntProperty(name="Layout Version", default=0)
-    stats_json: StringProperty(name="Statistics", description="Per-LOD figures as JSON")
+    stats_json: StringProperty(name="Statistics",
+                               description="The import's figures as JSON (the per-LOD ones: lod_stats)")
+    lod_stats: CollectionProperty(name="LOD Figures", type=lod_figures.GaussVDBLODFigures)
+    lod_stats_index: IntProperty(name="Active LOD Figures", options={"HIDDEN", "SKIP_SAVE"})
     sequence_range: EnumProperty(
         name="Range Over", default="SEQUENCE", update=_tag,
         description="A sequence's automatic transfer-function range",
@@ -123,10 +126,12 @@ class GaussVDBObjectSettings(ClipProps, SurfaceProps, TransferFunctionProps, bpy
                                            "off: with its own colormap, range, log scale and density")
 
     def stats(self) -> dict:
+        """The import's figures: the object's (JSON) and, under "lods", each LOD's."""
         try:
-            return json.loads(self.stats_json or "{}")
+            figures = json.loads(self.stats_json or "{}")
         except ValueError:
-            return {}
+            figures = {}
+        return dict(figures, lods=lod_figures.as_dicts(self))
 
     def voxel_stats(self):
         """The grid's value figures stored at import (kernels.render.voxel_stats: min, max,

@@ -8,6 +8,7 @@ from .. import operators
 from ..kernels import cachedir, openvdb_binding
 from . import (
     engine,
+    lod_figures,
     object_panel,
     object_settings,
     presets,
@@ -20,8 +21,8 @@ from .io import versioning
 
 # Properties first (others point at them), panels last (they draw the rest).
 # versioning: the load handler that upgrades files written by older versions.
-MODULES = (object_settings, source_path, render_settings, presets, operators, engine, render_panel,
-           object_panel, transfer_ui, versioning)
+MODULES = (lod_figures, object_settings, source_path, render_settings, presets, operators, engine,
+           render_panel, object_panel, transfer_ui, versioning)
 
 
 def bundled_openvdb():

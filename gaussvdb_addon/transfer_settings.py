@@ -10,10 +10,9 @@ modified preset until one is picked again on purpose.
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
 
-COLORMAPS = (
-    "viridis", "plasma", "inferno", "magma", "cividis", "turbo", "jet", "coolwarm", "grayscale",
-)
-COLORMAP_ITEMS = [(n, n.title(), f"{n} colormap") for n in COLORMAPS]
+from ..kernels import colormap_names
+
+COLORMAP_ITEMS = colormap_names.enum_items()
 ALPHA_ITEMS = (("RAMP", "Ramp", "Alpha rises linearly from 0 at the low end to 1 at the high end"),
                ("CONSTANT", "Constant", "Alpha 1 everywhere (density alone sets the opacity)"),
                ("KEEP", "Keep", "Only the colours change; the ramp's alpha is kept"))
@@ -36,7 +35,7 @@ class TransferFunctionProps:
     """Mixin of the PropertyGroups that carry a transfer function (Blender registers the
     annotations of base classes too)."""
 
-    colormap: EnumProperty(name="Colormap", items=COLORMAP_ITEMS, default="viridis",
+    colormap: EnumProperty(name="Colormap", items=COLORMAP_ITEMS, default=colormap_names.DEFAULT,
                            update=_colormap_changed,
                            description="Colormap preset written into the transfer function ramp")
     colormap_alpha: EnumProperty(name="Alpha", default="RAMP", items=ALPHA_ITEMS,

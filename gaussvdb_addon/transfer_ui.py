@@ -9,6 +9,7 @@ panel sets (``layout.context_pointer_set``), else the scene's.
 import bpy
 from bpy.props import EnumProperty
 
+from ..kernels import colormap_names
 from .transfer_settings import COLORMAP_ITEMS
 
 
@@ -32,7 +33,7 @@ class GAUSSVDB_OT_colormap_pick(bpy.types.Operator):
         if transfer_ramp.is_edited(target(context)):
             return context.window_manager.invoke_confirm(
                 self, event, title="Replace the Edited Ramp?", confirm_text="Replace",
-                message=f"The ramp was edited by hand; {self.colormap.title()} replaces it")
+                message=f"The ramp was edited by hand; {colormap_names.label(self.colormap)} replaces it")
         return self.execute(context)
 
     def execute(self, context):
@@ -58,7 +59,7 @@ def draw_transfer(layout, settings, objects, presets_row=True):
     edited = transfer_ramp.is_edited(settings)
     row = layout.row(align=True)
     row.operator_menu_enum(GAUSSVDB_OT_colormap_pick.bl_idname, "colormap",
-                           text=settings.colormap.title() + (" (Edited)" if edited else ""),
+                           text=colormap_names.label(settings.colormap) + (" (Edited)" if edited else ""),
                            icon="COLOR")
     row.prop(settings, "colormap_alpha", text="")
     if presets_row:

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import lod_names
+
 
 class ConversionError(Exception):
     """A conversion failed; the message says why in one line. Nothing was created."""
@@ -75,23 +77,19 @@ def split_names(text) -> list | None:
 
 def order_lods(lods) -> list:
     """LOD names in the kernels' preset order (coarse first), validated, duplicates dropped."""
-    from .lod.build import PRESETS
-
     if isinstance(lods, str):
         lods = [lods]
     lods = list(lods or ())
-    bad = [name for name in lods if name not in PRESETS]
+    bad = [name for name in lods if name not in lod_names.PRESETS]
     if bad:
-        raise ConversionError(f"unknown LOD preset {bad[0]!r}; choose from {', '.join(PRESETS)}")
+        raise ConversionError(f"unknown LOD preset {bad[0]!r}; choose from {', '.join(lod_names.PRESETS)}")
     if not lods:
         raise ConversionError("choose at least one LOD preset")
-    return [p for p in PRESETS if p in lods]
+    return [p for p in lod_names.PRESETS if p in lods]
 
 
 def lod_label(name: str) -> str:
-    from .lod.build import PRESET_LABELS
-
-    return PRESET_LABELS.get(name, name.title())
+    return lod_names.label(name)
 
 
 # -- results ---------------------------------------------------------------------------------------

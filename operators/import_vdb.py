@@ -14,16 +14,8 @@ import bpy
 from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-# Mirrors kernels.lod.PRESETS / PRESET_LABELS (kept static: registration must not import numba;
-# tests/test_import_operator.py checks they agree).
-LOD_ITEMS = (
-    ("low", "Low", "One Gaussian per leaf (the paper's Low LOD)"),
-    ("medium", "Medium", "4^3 blocks in dense leaves, 2^3 blocks or voxels in sparse ones"),
-    ("high", "High", "2^3 blocks in dense leaves, one Gaussian per voxel in sparse ones"),
-    ("variance", "Variance", "Variance-based clustering inside each leaf (recursive bisection)"),
-    ("merged", "Merged", "High plus merging similar neighbouring blocks across leaves"),
-    ("adaptive", "Adaptive", "The fewest Gaussians whose field meets the tolerance (fitted amplitudes)"),
-)
+from ..kernels import lod_names
+
 # Files larger than this run as a modal (cancellable) job in the UI; smaller ones finish at once.
 MODAL_MIN_BYTES = 4 << 20
 
@@ -44,14 +36,15 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
     grids: StringProperty(name="Grids", default="", options={"SKIP_PRESET"},
                           description="Comma-separated grid names (empty: every scalar grid; of a "
                                       "Mantaflow cache only density, not the domain-wide shadow)")
-    lods: EnumProperty(name="LODs", items=LOD_ITEMS, options={"ENUM_FLAG"}, default={"medium"},
+    lods: EnumProperty(name="LODs", items=lod_names.enum_items(), options={"ENUM_FLAG"},
+                       default={lod_names.DEFAULT},
                        description="LOD presets stored on each object (shift-click for several)")
-    tolerance: FloatProperty(name="Tolerance", default=0.02, min=0.0, soft_max=0.2, precision=3,
+    tolerance: FloatProperty(name="Tolerance", default=lod_names.DEFAULT_TOLERANCE, min=0.0,
+                             soft_max=0.2, precision=3,
                              description="Adaptive LOD: largest field NRMSE over the active voxels")
-    weights: EnumProperty(name="Weights", default="field",
-                          description="How each Gaussian's size and amplitude are chosen", items=(
-        ("field", "Field", "Normalized kernels times the volume they stand for (exact fields)"),
-        ("paper", "Paper", "The paper's weights: sigma = half extent, value as peak")))
+    weights: EnumProperty(name="Weights", default=lod_names.WEIGHTS[0],
+                          items=lod_names.weight_items(),
+                          description="How each Gaussian's size and amplitude are chosen")
     level_set_band: BoolProperty(name="Zero-Crossing Band Only", default=True,
                                  description="Level sets: keep only Gaussians whose voxels straddle the surface")
     vector_magnitude: BoolProperty(name="Vector Grids as Magnitude", default=False,
@@ -78,7 +71,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             layout.label(text=importer.default_grids_hint(self.filepath), icon="INFO")
         col = layout.column(heading="LODs")
         col.prop(self, "lods")
-        if "adaptive" in self.lods:
+        if self.lods & set(lod_names.TOLERANCE_PRESETS):
             layout.prop(self, "tolerance")
         layout.prop(self, "weights")
         layout.prop(self, "level_set_band")

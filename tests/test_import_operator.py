@@ -19,6 +19,10 @@ def _mods():
     return imp, vdb, lod
 
 
+def _labels():
+    return importlib.import_module(ADDON_MODULE + ".kernels.lod_names").LABELS
+
+
 def _schema():
     return importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.io.schema")
 
@@ -99,7 +103,7 @@ def test_sample_every_preset_and_status_message(scene, bpy_module):
     for s in stats:
         assert 0 < s["nrmse"] < 1 and s["bytes"] > 0 and s["seconds"] >= 0
     msg = imp.status_message(objs)
-    labels = " / ".join(lod.PRESET_LABELS[p] for p in lod.PRESETS)
+    labels = " / ".join(_labels()[p] for p in lod.PRESETS)
     assert msg.startswith("density: ") and f"Gaussians ({labels})" in msg
     first = msg.split("; ")[0]  # (a first use adds the kernels' compile time after it)
     assert "field NRMSE" in first and first.rstrip().endswith("B")
@@ -122,11 +126,11 @@ def test_operator_reports_status_and_selects(scene, bpy_module):
     assert all(o.gaussvdb.weights == "paper" for o in objs)
 
 
-def test_lod_items_match_kernels(addon):
-    mod = importlib.import_module(ADDON_MODULE + ".operators.import_vdb")
+def test_lod_items_match_kernels(addon, bpy_module):
+    items = bpy_module.ops.gaussvdb.import_vdb.get_rna_type().properties["lods"].enum_items
     _, _, lod = _mods()
-    assert tuple(i[0] for i in mod.LOD_ITEMS) == tuple(lod.PRESETS)
-    assert tuple(i[1] for i in mod.LOD_ITEMS) == tuple(lod.PRESET_LABELS[p] for p in lod.PRESETS)
+    assert tuple(i.identifier for i in items) == tuple(lod.PRESETS)
+    assert tuple(i.name for i in items) == tuple(_labels()[p] for p in lod.PRESETS)
 
 
 def test_menu_and_file_handler_registered(addon, bpy_module):

@@ -34,7 +34,7 @@ def test_save_reload_is_bit_exact(scene, bpy_module, tmp_path):
                           compute_error=False)
     objs[0].gaussvdb.render_lod = "low"
     before = {o.name: (_raw(o), np.asarray(o.matrix_world).copy(), o.gaussvdb.lods,
-                       o.gaussvdb.viewport_lod, o.gaussvdb.render_lod, o.gaussvdb.stats_json,
+                       o.gaussvdb.viewport_lod, o.gaussvdb.render_lod, o.gaussvdb.stats(),
                        o.gaussvdb.index_to_world) for o in objs}
     path = str(tmp_path / "saved.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
@@ -49,7 +49,7 @@ def test_save_reload_is_bit_exact(scene, bpy_module, tmp_path):
         assert _raw(o) == raw  # names, types and bytes
         assert np.array_equal(np.asarray(o.matrix_world), mw)
         assert (o.gaussvdb.lods, o.gaussvdb.viewport_lod, o.gaussvdb.render_lod) == (lods, vp, rl)
-        assert o.gaussvdb.stats_json == stats and o.gaussvdb.index_to_world == m
+        assert o.gaussvdb.stats() == stats and o.gaussvdb.index_to_world == m
     os.remove(path)
 
 
@@ -94,6 +94,10 @@ def test_reload_button_rereads_with_same_settings(scene, bpy_module, tmp_path):
     assert obj.gaussvdb.lods == "low,high" and obj.gaussvdb.weights == "paper"
     gs = imp.gaussian_set_from_object(obj, "low")
     assert gs.count == 2 and np.all(gs.values == np.float32(0.25))
+    # the per-LOD figures are the new file's (the collection moved onto the kept object)
+    assert [(s["lod"], s["count"]) for s in imp.object_stats(obj)] == [
+        (n, imp.gaussian_set_from_object(obj, n).count) for n in ("low", "high")]
+    assert gs.params["value_max"] == 0.25
     assert len(bpy.data.pointclouds) == 1 and not bpy.data.meshes
     # A broken file: Reload reports and changes nothing.
     with open(path, "wb") as f:

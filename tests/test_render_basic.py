@@ -4,15 +4,14 @@ import math
 import numpy as np
 import pytest
 
+from kernels.colormap_names import MATPLOTLIB, NAMES
 from kernels.render import Camera, TransferFunction, colormap, colormap_names, generate_rays, srgb_to_linear
-from kernels.render.colormaps import linear_to_srgb, ramp_stops
+from kernels.render.colormaps import linear_to_srgb, ramp_error, stops_from_table
 from kernels.render.transfer import value_range
-
-NAMES = ["viridis", "plasma", "inferno", "magma", "cividis", "turbo", "jet", "coolwarm", "grayscale"]
 
 
 def test_colormap_names_and_shapes():
-    assert colormap_names()[:9] == NAMES
+    assert colormap_names() == list(NAMES)  # a table for every name, none without one
     for n in NAMES:
         t = colormap(n)
         assert t.shape == (256, 3) and t.dtype == np.float32
@@ -23,9 +22,8 @@ def test_colormap_names_and_shapes():
 
 def test_colormaps_match_matplotlib():
     mpl = pytest.importorskip("matplotlib")
-    m = {"grayscale": "gray"}
     for n in NAMES:
-        ref = mpl.colormaps[m.get(n, n)].resampled(256)(np.arange(256))[:, :3]
+        ref = mpl.colormaps[MATPLOTLIB[n]].resampled(256)(np.arange(256))[:, :3]
         np.testing.assert_allclose(colormap(n), ref, atol=1e-6, err_msg=n)
 
 
@@ -33,6 +31,7 @@ def test_srgb_roundtrip_and_known_values():
     x = np.linspace(0, 1, 101)
     np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-12)
     assert abs(srgb_to_linear(0.5) - 0.21404114) < 1e-7
+    assert linear_to_srgb(-0.25) == 0.0  # negative light encodes as black
     # a table entry written linear and shown through the Standard view lands within 1/255
     t = colormap("viridis")
     back = np.round(linear_to_srgb(srgb_to_linear(t)) * 255)
@@ -55,9 +54,10 @@ def test_tf_from_ramp_and_stops():
     np.testing.assert_allclose(tf(5.0), [0.5, 0, 0.5, 0.5], atol=1e-2)
     c = TransferFunction.from_ramp([0.0, 0.5], [[1, 0, 0, 1], [0, 1, 0, 1]], 0, 1, interpolation="CONSTANT")
     assert c(0.25)[0] == 1.0 and c(0.75)[1] == 1.0
-    pos, rgba = ramp_stops("viridis", 32)
-    assert pos.shape == (32,) and rgba.shape == (32, 4)
-    np.testing.assert_allclose(rgba[-1, :3], srgb_to_linear(colormap("viridis")[-1]), atol=1e-6)
+    pos, rgba = stops_from_table(colormap("viridis"))
+    assert pos.shape == (32,) and rgba.shape == (32, 4) and pos[0] == 0 and pos[-1] == 1
+    np.testing.assert_allclose(rgba[:, 3], pos)  # alpha ramps 0 -> 1
+    assert ramp_error("viridis") < 1 / 255  # the 32 fitted stops stay within one 8-bit step
 
 
 def test_value_range():

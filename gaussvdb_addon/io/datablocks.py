@@ -5,9 +5,9 @@ One object per ConvertedGrid: a PointCloud laid out as schema.py says, the objec
 (source, grid, LODs, figures, layout version) and its matrix, the grid's index-to-world.
 """
 
-import json
 import os
 
+from .. import lod_figures
 from . import schema
 
 
@@ -95,7 +95,7 @@ def _settings_to_object(obj, cg, stats, options):
                "seconds_compile": cg.seconds_compile}
     if cg.sequence:
         figures["sequence"] = cg.sequence["figures"]
-    st.stats_json = json.dumps(figures)
+    lod_figures.store(st, figures)
     names = [cl.name for cl in cg.lods]
     # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
     st.viewport_lod = names[0]

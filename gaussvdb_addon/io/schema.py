@@ -22,8 +22,6 @@ float64 text, in ``gaussvdb.index_to_world``); ``gaussvdb.stats_json`` holds the
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from ...kernels.pipeline import ConversionError, lod_label
@@ -174,10 +172,9 @@ def active_lod(obj, render=False) -> str:
 
 
 def object_stats(obj) -> list:
-    try:
-        return json.loads(obj.gaussvdb.stats_json or "{}").get("lods", [])
-    except ValueError:
-        return []
+    from .. import lod_figures
+
+    return lod_figures.as_dicts(obj.gaussvdb)
 
 
 def stored_index_to_world(obj) -> np.ndarray:

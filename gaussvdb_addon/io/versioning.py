@@ -11,6 +11,7 @@ version. Objects linked from a library cannot be written: the reader upgrades th
 import bpy
 from bpy.app.handlers import persistent
 
+from .. import lod_figures
 from . import schema
 
 
@@ -43,7 +44,8 @@ def do_versions() -> list:
         if gs is None or not gs.is_gaussvdb:
             continue
         try:
-            if upgrade_object(obj):
+            moved = lod_figures.upgrade(obj)  # per-LOD figures: JSON -> collection
+            if upgrade_object(obj) or moved:
                 done.append(obj.name)
         except (ValueError, KeyError) as err:  # newer layout, or no positions: the reader says so
             print(f"GaussVDB: {obj.name} not upgraded: {err}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import lod_names
 from . import clustering, levelset, schemes
 from . import weights as W
 from .adaptive import build_adaptive
@@ -11,11 +12,7 @@ from .gaussian_set import GaussianSet
 from .gridprep import active_tiles, finite_grid, range_of
 from .refine import refine_amplitudes
 
-# ordered: the paper's three spatial schemes, the two clustering schemes, then the error-bounded one
-PRESETS = ("low", "medium", "high", "variance", "merged", "adaptive")
-PRESET_LABELS = {"low": "Low", "medium": "Medium", "high": "High", "variance": "Variance",
-                 "merged": "Merged", "adaptive": "Adaptive"}
-WEIGHTS = ("field", "paper")
+PRESETS, WEIGHTS = lod_names.PRESETS, lod_names.WEIGHTS
 DEFAULTS = dict(
     sigma_factor=W.DEFAULT_SIGMA_FACTOR,  # field weights: sigma = f x block edge
     var_spatial=4.0,  # variance scheme: max spatial variance (voxel^2, summed over axes)
@@ -23,7 +20,7 @@ DEFAULTS = dict(
     merge_tol=clustering.DEFAULT_MERGE_TOL,  # merge pass: max value std / value range
     merge_base="high",  # the spatial scheme the merged preset starts from
     band_width=levelset.DEFAULT_BAND_WIDTH,  # level sets: |phi| <= band_width x voxel size
-    tolerance=0.02,  # adaptive: max field NRMSE over the active voxels
+    tolerance=lod_names.DEFAULT_TOLERANCE,  # adaptive: max field NRMSE over the active voxels
     max_error=0.0,  # adaptive: max |field - voxel| (value units); 0: no bound
 )
 
@@ -76,7 +73,7 @@ def _tile_boxes(grid, t_act, band_thr):
     return t_or, box
 
 
-def build_lod(grid, preset="medium", weights="field", *, level_set_band=True, merge=None,
+def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band=True, merge=None,
               refine=0, **thresholds) -> GaussianSet:
     """refine: amplitude-refinement iterations (field weights, non-level-set grids; see refine.py).
     0 (default) keeps a_i = V_i / ((2 pi)^1.5 sx sy sz); 2 roughly halves the NRMSE at High LOD on

@@ -17,6 +17,8 @@ surface error is the IoU of {s >= 1/2} with the reference shell over the active 
 (`surface_mismatch`).
 Tiles: an 8^3 tile is evaluated at all its voxels; a larger tile at the 8^3 voxels around its centre,
 weighted by (edge/8)^3 (its interior is far from any edge effect).
+The per-cell pieces (axis terms, mixture, residual, per-pair sums) are shared with refine.py and
+fit.py, so the three measure the same field at the same voxels.
 """
 from __future__ import annotations
 
@@ -98,16 +100,23 @@ def _fill_pairs(cent, sig, k, keys, corg, start, out):
 
 
 @njit(cache=True, inline="always")
+def axis_terms(c, g, corg, cent, sig, power, q, e):
+    """Along each axis a, at the 8 voxel centres l of cell c: q[a, l] = d^2 and
+    e[a, l] = exp(-power d^2 / 2), d the distance to Gaussian g's centre in its sigmas."""
+    for a in range(3):
+        for li in range(8):
+            d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
+            q[a, li] = d * d
+            e[a, li] = np.exp(-0.5 * power * d * d)
+
+
+@njit(cache=True, inline="always")
 def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
     """Add to acc (512) the mixture at the voxel centres of cell c: every Gaussian listed for the
     cell, truncated at k sigma (k2 = k^2), with separable exponentials per axis."""
     for p in range(cstart[c], cstart[c + 1]):
         g = pg[p]
-        for a in range(3):
-            for li in range(8):
-                d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
-                q[a, li] = d * d
-                e[a, li] = np.exp(-0.5 * d * d)
+        axis_terms(c, g, corg, cent, sig, 1.0, q, e)
         wg = w[g]
         for x in range(8):
             if q[0, x] > k2:
@@ -123,6 +132,55 @@ def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
                         acc[base + z] += wxy * e[2, z]
 
 
+@njit(cache=True, inline="always")
+def cell_residual(c, cmask, cref, acc, res, act):
+    """The residual reference - mixture at the active voxels i of cell c into res[i], act[i] = True
+    there (both left as they are elsewhere). Returns (sum of squares, max |residual|, voxels)."""
+    s2 = 0.0
+    m = 0.0
+    n = 0.0
+    for wd in range(8):
+        mk = cmask[c, wd]
+        if mk == 0:
+            continue
+        for b in range(64):
+            if (mk >> np.uint64(b)) & np.uint64(1):
+                i = wd * 64 + b
+                r = np.float64(cref[c, i]) - acc[i]
+                res[i] = r
+                act[i] = True
+                s2 += r * r
+                m = max(m, abs(r))
+                n += 1.0
+    return s2, m, n
+
+
+@njit(cache=True, inline="always")
+def pair_sums(c, g, corg, cent, sig, k2, power, q, e, act, res, wt):
+    """For Gaussian g listed in cell c: (sum psi res, sum psi wt) over the active voxels (act) of
+    the cell, psi = g^power (the Gaussian narrowed to sigma / sqrt(power), cut at k2 / power)."""
+    k2p = k2 / power
+    axis_terms(c, g, corg, cent, sig, power, q, e)
+    num = 0.0
+    den = 0.0
+    for x in range(8):
+        if q[0, x] > k2p:
+            continue
+        for y in range(8):
+            qxy = q[0, x] + q[1, y]
+            if qxy > k2p:
+                continue
+            exy = e[0, x] * e[1, y]
+            base = x * 64 + y * 8
+            for z in range(8):
+                i = base + z
+                if act[i] and qxy + q[2, z] <= k2p:
+                    ps = exy * e[2, z]
+                    num += ps * res[i]
+                    den += ps * wt[i]
+    return num, den
+
+
 @parallel_njit(cache=True)
 def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
     nc = corg.shape[0]
@@ -134,33 +192,23 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
     k2 = k * k
     for c in prange(nc):
         acc = np.zeros(512)
+        res = np.empty(512)
+        act = np.zeros(512, np.bool_)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
         cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
-        s2 = 0.0
-        m = 0.0
-        n = 0.0
+        sse[c], mx[c], npts[c] = cell_residual(c, cmask, cref, acc, res, act)
         it = 0.0
         un = 0.0
-        for wd in range(8):
-            mk = cmask[c, wd]
-            if mk == 0:
-                continue
-            for b in range(64):
-                if (mk >> np.uint64(b)) & np.uint64(1):
-                    i = wd * 64 + b
-                    r = np.float64(cref[c, i])
-                    d = acc[i] - r
-                    s2 += d * d
-                    m = max(m, abs(d))
-                    n += 1.0
-                    occ = acc[i] >= 0.5
-                    ref = r >= 0.5
-                    if occ and ref:
-                        it += 1.0
-                    if occ or ref:
-                        un += 1.0
-        sse[c], mx[c], npts[c], inter[c], union[c] = s2, m, n, it, un
+        for i in range(512):
+            if act[i]:
+                occ = acc[i] >= 0.5
+                ref = cref[c, i] >= 0.5
+                if occ and ref:
+                    it += 1.0
+                if occ or ref:
+                    un += 1.0
+        inter[c], union[c] = it, un
     return sse, mx, npts, inter, union
 
 

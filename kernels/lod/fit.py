@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import parallel_njit, prange
-from .error import cell_mixture
+from .error import cell_mixture, cell_residual, pair_sums
 
 OMEGA = 1.6  # over-relaxation (< 2)
 
@@ -43,49 +43,17 @@ def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, pnum, pden, 
         cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
         cell_mixture(c, corg, cstart, pg, cent, sig, ones, k2, one, q, e)  # s1, or sum |w g|
         act = np.zeros(512, np.bool_)
-        s2 = 0.0
-        m = 0.0
+        res = cres[c]
         for i in range(512):
-            cres[c, i] = 0.0
-        for wd in range(8):
-            mk = cmask[c, wd]
-            if mk == 0:
-                continue
-            for b in range(64):
-                if (mk >> np.uint64(b)) & np.uint64(1):
-                    i = wd * 64 + b
-                    r = np.float64(cref[c, i]) - acc[i]
-                    cres[c, i] = r
-                    act[i] = True
-                    if not with_den:
-                        one[i] = r * r / one[i] if one[i] > 1e-30 else 0.0
-                    s2 += r * r
-                    m = max(m, abs(r))
-        sse[c], mx[c] = s2, m
+            res[i] = 0.0
+        sse[c], mx[c], _ = cell_residual(c, cmask, cref, acc, res, act)
+        if not with_den:
+            for i in range(512):
+                if act[i]:
+                    one[i] = res[i] * res[i] / one[i] if one[i] > 1e-30 else 0.0
         for p in range(cstart[c], cstart[c + 1]):
             g = pg[p]
-            for a in range(3):
-                for li in range(8):
-                    d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
-                    q[a, li] = d * d
-                    e[a, li] = np.exp(-0.5 * d * d)
-            num = 0.0
-            den = 0.0
-            for x in range(8):
-                if q[0, x] > k2:
-                    continue
-                for y in range(8):
-                    qxy = q[0, x] + q[1, y]
-                    if qxy > k2:
-                        continue
-                    exy = e[0, x] * e[1, y]
-                    base = x * 64 + y * 8
-                    for z in range(8):
-                        i = base + z
-                        if act[i] and qxy + q[2, z] <= k2:
-                            ps = exy * e[2, z]
-                            num += ps * cres[c, i]
-                            den += ps * one[i]
+            num, den = pair_sums(c, g, corg, cent, sig, k2, 1.0, q, e, act, res, one)
             pnum[p] = num
             pden[p] = den if with_den else den * abs(w[g])
     return sse, mx

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import parallel_njit, prange
-from .error import DEFAULT_K, cell_mixture, setup
+from .error import DEFAULT_K, cell_mixture, cell_residual, pair_sums, setup
 from .weights import amplitudes64, factors_from_codes, quantize_factors
 
 FMAX = 8.0  # largest amplitude factor (an isolated voxel needs ~3.4 at sigma = 0.6 voxel)
@@ -33,54 +33,18 @@ POWER = 4.0  # psi = g^POWER
 def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum, pden):
     nc = corg.shape[0]
     k2 = k * k
-    k2p = k2 / power
     sse = np.zeros(nc)
+    ones = np.ones(512)
     for c in prange(nc):
         acc = np.zeros(512)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
         cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
         res = np.zeros(512)
-        act = np.zeros(512)
-        s2 = 0.0
-        for wd in range(8):
-            mk = cmask[c, wd]
-            if mk == 0:
-                continue
-            for b in range(64):
-                if (mk >> np.uint64(b)) & np.uint64(1):
-                    i = wd * 64 + b
-                    r = np.float64(cref[c, i]) - acc[i]
-                    res[i] = r
-                    act[i] = 1.0
-                    s2 += r * r
-        sse[c] = s2
+        act = np.zeros(512, np.bool_)
+        sse[c] = cell_residual(c, cmask, cref, acc, res, act)[0]
         for p in range(cstart[c], cstart[c + 1]):
-            g = pg[p]
-            for a in range(3):
-                for li in range(8):
-                    d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
-                    q[a, li] = d * d
-                    e[a, li] = np.exp(-0.5 * power * d * d)
-            num = 0.0
-            den = 0.0
-            for x in range(8):
-                if q[0, x] > k2p:
-                    continue
-                for y in range(8):
-                    qxy = q[0, x] + q[1, y]
-                    if qxy > k2p:
-                        continue
-                    exy = e[0, x] * e[1, y]
-                    base = x * 64 + y * 8
-                    for z in range(8):
-                        i = base + z
-                        if act[i] != 0.0 and qxy + q[2, z] <= k2p:
-                            ps = exy * e[2, z]
-                            num += ps * res[i]
-                            den += ps
-            pnum[p] = num
-            pden[p] = den
+            pnum[p], pden[p] = pair_sums(c, pg[p], corg, cent, sig, k2, power, q, e, act, res, ones)
     return sse
 
 
