@@ -58,9 +58,9 @@ def main(argv=None):
     from blender_session import addon_module, start
 
     bpy = start()
-    importer = addon_module("gaussvdb_addon.importer")
-    final_render = addon_module("gaussvdb_addon.final_render")
-    scene_sync = addon_module("gaussvdb_addon.scene_sync")
+    importer = addon_module("gaussvdb_addon.io.importer")
+    final_render = addon_module("gaussvdb_addon.engine.final_render")
+    scene_sync = addon_module("gaussvdb_addon.engine.scene_sync")
     tmp = tempfile.mkdtemp(prefix="gaussvdb-bench-")
     rows = []
     for path in a.files:

@@ -54,9 +54,9 @@ def main(argv=None):
     from blender_session import addon_module, start
 
     bpy = start()
-    sf = addon_module("gaussvdb_addon.sequence_frames")
-    si = addon_module("gaussvdb_addon.sequence_import")
-    scene_sync = addon_module("gaussvdb_addon.scene_sync")
+    sf = addon_module("gaussvdb_addon.engine.sequence_frames")
+    si = addon_module("gaussvdb_addon.io.sequence_import")
+    scene_sync = addon_module("gaussvdb_addon.engine.scene_sync")
     sf.convert_frame(pat.path(frames[-1]), a.grid, lods[0])  # load the kernels first
     vdb_bytes = [os.path.getsize(pat.path(n)) for n in frames]
     rows = []

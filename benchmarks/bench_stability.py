@@ -1,4 +1,4 @@
-"""Issue 8 numerical-stability sweeps: larger versions of tests/test_stability_kernels.py's cases.
+"""Issue 8 numerical-stability sweeps: larger versions of tests/kernels/test_stability_kernels.py's cases.
 Prints one row per case: worst error found, the reference it was measured against, the tolerance
 and PASS/FAIL (FAIL rows are known bugs, see the xfail marks in the tests).
 

@@ -6,23 +6,15 @@ import bpy
 
 from .. import operators
 from ..kernels import cachedir, openvdb_binding
-from . import (
-    engine,
-    lod_figures,
-    object_panel,
-    object_settings,
-    presets,
-    render_panel,
-    render_settings,
-    source_path,
-    transfer_ui,
-)
-from .io import versioning
+from .engine import render_engine
+from .io import source_path, versioning
+from .properties import lod_figures, object_settings, render_settings
+from .ui import object_panel, presets, render_panel, transfer_ui
 
 # Properties first (others point at them), panels last (they draw the rest).
 # versioning: the load handler that upgrades files written by older versions.
-MODULES = (lod_figures, object_settings, source_path, render_settings, presets, operators, engine,
-           render_panel, object_panel, transfer_ui, versioning)
+MODULES = (lod_figures, object_settings, source_path, render_settings, presets, operators,
+           render_engine, render_panel, object_panel, transfer_ui, versioning)
 
 
 def bundled_openvdb():

@@ -1,8 +1,8 @@
 """Blender operators. Thin: each one calls a plain function that scripts and the CLI call too."""
 
-from . import import_vdb, reload
+from . import colormap, import_vdb, presets, reload
 
-CLASSES = (*import_vdb.CLASSES, *reload.CLASSES)
+CLASSES = (*import_vdb.CLASSES, *reload.CLASSES, *colormap.CLASSES, *presets.CLASSES)
 
 
 def register_extra():

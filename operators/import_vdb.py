@@ -1,6 +1,6 @@
 """File > Import > OpenVDB as Gaussians (.vdb), and drag-and-drop of .vdb files onto the viewport.
 
-Thin: the work is in gaussvdb_addon/importer.py (convert everything first, then create objects).
+Thin: the work is in gaussvdb_addon/io/importer.py (convert everything first, then create objects).
 
 Long imports in the UI: `execute` runs the conversion one step (one grid x one LOD) per timer event
 as a modal operator, with the window manager's progress bar; Esc between steps cancels and leaves the
@@ -66,7 +66,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         row.operator("gaussvdb.import_preset_add", text="", icon="REMOVE").remove_active = True
         layout.prop(self, "grids")
         if not self.grids.strip():
-            from ..gaussvdb_addon import importer
+            from ..gaussvdb_addon.io import importer
 
             layout.label(text=importer.default_grids_hint(self.filepath), icon="INFO")
         col = layout.column(heading="LODs")
@@ -77,7 +77,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         layout.prop(self, "level_set_band")
         layout.prop(self, "vector_magnitude")
         layout.prop(self, "measure_error")
-        from ..gaussvdb_addon import sequence_import
+        from ..gaussvdb_addon.io import sequence_import
 
         if sequence_import.has_siblings(self.filepath):
             layout.prop(self, "use_sequence")
@@ -87,7 +87,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         return self.invoke_popup(context)
 
     def _options(self):
-        from ..gaussvdb_addon import importer
+        from ..gaussvdb_addon.io import importer
 
         return dict(grids=importer.split_names(self.grids), lods=sorted(self.lods),
                     weights=self.weights, level_set_band=self.level_set_band,
@@ -95,13 +95,14 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                     tolerance=self.tolerance, sequence=self.use_sequence)
 
     def execute(self, context):
-        from ..gaussvdb_addon import importer, kernel_cache
+        from ..gaussvdb_addon.engine import kernel_cache
+        from ..gaussvdb_addon.io import importer
 
         paths = importer.selected_paths(self.filepath, self.directory, self.files)
         big = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) >= MODAL_MIN_BYTES
         # the first use compiles for about a minute: run modal, so the status bar says so first
         big = big or not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
-        from ..gaussvdb_addon import sequence_import
+        from ..gaussvdb_addon.io import sequence_import
 
         if self.use_sequence and sequence_import.any_sequence(paths):
             big = False  # in one go: every frame is read once, then one frame is converted
@@ -118,7 +119,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
 
     # -- the modal path (UI only) ----------------------------------------------------------------
     def _start_modal(self, context, paths):
-        from ..gaussvdb_addon import importer
+        from ..gaussvdb_addon.io import importer
 
         opts = self._options()
         opts.pop("sequence")
@@ -134,7 +135,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         wm.progress_begin(0, 1000)
         self._timer = wm.event_timer_add(0.01, window=context.window)
         wm.modal_handler_add(self)
-        from ..gaussvdb_addon import kernel_cache
+        from ..gaussvdb_addon.engine import kernel_cache
 
         first = not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
         context.workspace.status_text_set((kernel_cache.MESSAGE + " " if first else "")
@@ -152,7 +153,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             job.close()
 
     def modal(self, context, event):
-        from ..gaussvdb_addon import importer
+        from ..gaussvdb_addon.io import importer
 
         if event.type == "ESC":
             self._stop_modal(context)

@@ -16,7 +16,7 @@ class GAUSSVDB_OT_reload(bpy.types.Operator):
         return obj is not None and obj.gaussvdb.is_gaussvdb and obj.type == "POINTCLOUD"
 
     def execute(self, context):
-        from ..gaussvdb_addon import importer
+        from ..gaussvdb_addon.io import importer
 
         obj = context.object
         try:

@@ -1,4 +1,5 @@
 """Test set-up: real Blender (the bpy module), isolated from any installed copy of the extension.
+The tests are split by layer: kernels/ (no Blender), blender/ (the add-on), e2e/ (the command line).
 
 Kernel tests never touch bpy. Blender tests use the `addon` fixture (the working tree enabled as the
 extension `bl_ext.user_default.gaussvdb`) and the `scene` fixture (a factory-fresh empty scene).
@@ -14,6 +15,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA_DIR = os.path.join(os.path.dirname(ROOT), "shared", "data")
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
 ADDON_MODULE = "bl_ext.user_default.gaussvdb"
+# The suite is split by layer (kernels/, blender/, e2e/); a test may use another layer's helpers
+# (test_engine_helpers, ...) and the shared fixtures here, whichever folder pytest collects first.
+sys.path[:0] = [os.path.join(ROOT, "tests", d) for d in ("kernels", "blender", "e2e")] + [
+    os.path.join(ROOT, "tests")]
 
 # Before any `import bpy`: our own user config and extensions folder, so an installed copy of the
 # extension (or of its wheels) never shadows the working tree, and the tests never touch the user's.

@@ -27,8 +27,8 @@ def main(out):
     add_camera(bpy, scene, (3.5, -30.0, 3.5), (math.pi / 2, 0.0, 0.0), ortho_scale=16.0)
     s = scene.gaussvdb
     s.show_legend, s.legend_corner, s.legend_size, s.legend_units = True, "TOP_RIGHT", 0.8, "kg/m3"
-    scene_sync = addon_module("gaussvdb_addon.scene_sync")
-    overlay = addon_module("gaussvdb_addon.legend_overlay")
+    scene_sync = addon_module("gaussvdb_addon.engine.scene_sync")
+    overlay = addon_module("gaussvdb_addon.engine.legend_overlay")
     sync = scene_sync.SceneSync(viewport=True)
     sync.sync(bpy.context.evaluated_depsgraph_get())
     tf = sync.transfer_function(s)
@@ -68,7 +68,7 @@ def main(out):
 
     bpy.utils.register_class(Probe)
     setup_render(scene, 8, 8, engine=Probe.bl_idname)
-    addon_module("gaussvdb_addon.final_render").set_exact_colors(scene)
+    addon_module("gaussvdb_addon.engine.final_render").set_exact_colors(scene)
     bpy.ops.render.render()
     patch = overlay.patch(s, sync, tf, H)
     np.savez(out, pixels=got["pixels"], display=got["display"], patch=patch, renderer=got["renderer"])

@@ -62,7 +62,7 @@ def start():
 
 
 def addon_module(name: str):
-    """A submodule of the enabled extension, e.g. addon_module('gaussvdb_addon.importer')."""
+    """A submodule of the enabled extension, e.g. addon_module('gaussvdb_addon.io.importer')."""
     import importlib
 
     return importlib.import_module(f"{MODULE}.{name}")

@@ -51,7 +51,7 @@ def render_pngs(bpy, objs, args) -> list:
     import cmd_render
     from blender_session import addon_module
 
-    final_render = addon_module("gaussvdb_addon.final_render")
+    final_render = addon_module("gaussvdb_addon.engine.final_render")
     obj = objs[0]
     for other in objs[1:]:
         other.hide_render = True
@@ -80,7 +80,7 @@ def run(args) -> dict:
     from blender_session import addon_module, start
 
     bpy = start()
-    importer = addon_module("gaussvdb_addon.importer")
+    importer = addon_module("gaussvdb_addon.io.importer")
     lod = addon_module("kernels.lod")
     bpy.ops.wm.read_homefile(use_empty=True)
     path = os.path.abspath(args.file)

@@ -173,8 +173,8 @@ def render(args) -> dict:
 
     grid = cli_grids.choose_grid(args.file, args.grid, args.vector_magnitude)
     bpy = start()
-    importer = addon_module("gaussvdb_addon.importer")
-    final_render = addon_module("gaussvdb_addon.final_render")
+    importer = addon_module("gaussvdb_addon.io.importer")
+    final_render = addon_module("gaussvdb_addon.engine.final_render")
     check_format(final_render, args.out)
     bpy.ops.wm.read_homefile(use_empty=True)
     t0 = time.perf_counter()

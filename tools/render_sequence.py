@@ -85,9 +85,9 @@ def render(args, build_scene, quiet_render) -> dict:
     pat, frames, inside = frames_of(args)
     grid = choose_grid(pat, inside, args)
     bpy = start()
-    importer = addon_module("gaussvdb_addon.importer")
-    sequence_import = addon_module("gaussvdb_addon.sequence_import")
-    final_render = addon_module("gaussvdb_addon.final_render")
+    importer = addon_module("gaussvdb_addon.io.importer")
+    sequence_import = addon_module("gaussvdb_addon.io.sequence_import")
+    final_render = addon_module("gaussvdb_addon.engine.final_render")
     import cmd_render
 
     cmd_render.check_format(final_render, args.out)

@@ -7,7 +7,7 @@ One object per ConvertedGrid: a PointCloud laid out as schema.py says, the objec
 
 import os
 
-from .. import lod_figures
+from ..properties import lod_figures
 from . import schema
 
 
@@ -75,7 +75,7 @@ def _settings_to_object(obj, cg, stats, options):
     st = obj.gaussvdb
     st.is_gaussvdb = True
     if cg.sequence:  # the first file, with Blender's Volume sequence settings
-        from .. import source_path
+        from . import source_path
 
         st.source_volume = source_path.sequence_volume(cg.filepath, **cg.sequence["settings"])
     else:

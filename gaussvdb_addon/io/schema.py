@@ -172,7 +172,7 @@ def active_lod(obj, render=False) -> str:
 
 
 def object_stats(obj) -> list:
-    from .. import lod_figures
+    from ..properties import lod_figures
 
     return lod_figures.as_dicts(obj.gaussvdb)
 

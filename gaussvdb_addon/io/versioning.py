@@ -11,7 +11,7 @@ version. Objects linked from a library cannot be written: the reader upgrades th
 import bpy
 from bpy.app.handlers import persistent
 
-from .. import lod_figures
+from ..properties import lod_figures
 from . import schema
 
 

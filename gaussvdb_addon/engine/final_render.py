@@ -1,0 +1,321 @@
+"""F12 / animation renders of the GAUSSVDB engine, and ``render_scene_to_file`` for the CLI and demo.
+
+The frame's set-up is done once (``device.begin_frame``), then the image (or the render border's
+region, as Cycles does: Blender pads it to the full size unless the result is cropped) is drawn in
+bands of whole screen-tile rows (``device.band_rows``: eight per thread at least), sized from the
+drawing time so one band takes about 0.15 s, with
+``update_progress`` / ``update_result`` after each band and ``test_break`` before each (and polled
+by the device inside a band), so Esc stops a render within half a second. Combined is linear and
+premultiplied, written straight into the pass buffer (row 0 is the bottom row in both). Any error
+is reported with ``report`` and ``error_set``: ``bpy.ops.render.render`` then raises RuntimeError
+with the message and ``blender -b`` exits non-zero.
+"""
+
+import math
+import time
+import traceback
+
+import numpy as np
+
+from ...kernels.render import Camera
+
+TARGET_BAND_SECONDS = 0.15
+LAST_STATS = {}  # figures of the last final render in this process (the CLI prints them)
+_DEVICE = {}  # one CPU device per process: numba kernels compile once, acceleration is reused
+LOAD_SECONDS = [0.0]  # loading the kernels when the device was made (once per process)
+
+
+class RenderCancelled(Exception):
+    pass
+
+
+# -- camera ---------------------------------------------------------------------------------------
+def render_size(scene):
+    r = scene.render
+    f = r.resolution_percentage / 100.0
+    return max(1, int(r.resolution_x * f)), max(1, int(r.resolution_y * f))
+
+
+def camera_from_object(cam_obj, width, height, matrix_world=None, pixel_aspect=1.0):
+    """Kernel Camera for a Blender camera object at an image size (Blender's view-plane rules:
+    sensor fit AUTO spans the larger image side, HORIZONTAL the width, VERTICAL the height, sides
+    measured with the pixel aspect (a pixel's height over its width); shifts are in units of the
+    fitted side; clip start/end along the view axis)."""
+    cam = cam_obj.data
+    if cam.type not in ("PERSP", "ORTHO"):
+        raise ValueError(f"camera type {cam.type} is not supported (perspective and orthographic are)")
+    mw = np.array(matrix_world if matrix_world is not None else cam_obj.matrix_world, np.float64)
+    tall = height * pixel_aspect
+    big = max(width, tall)
+    fit = cam.sensor_fit
+    if fit == "AUTO":
+        fitted = big
+    elif fit == "HORIZONTAL":
+        fitted = width
+    else:
+        fitted = tall
+    scale = big / fitted  # fitted-side units -> larger-side units
+    kw = dict(shift_x=cam.shift_x / scale, shift_y=cam.shift_y / scale, pixel_aspect=pixel_aspect,
+              clip_start=max(0.0, cam.clip_start), clip_end=max(cam.clip_start, cam.clip_end, 0.0))
+    if cam.type == "ORTHO":
+        return Camera(mw, width, height, "ortho", ortho_scale=cam.ortho_scale * scale, **kw)
+    sensor = cam.sensor_height if fit == "VERTICAL" else cam.sensor_width
+    half = 0.5 * sensor / cam.lens * scale
+    return Camera(mw, width, height, "persp", fov_x=2.0 * math.atan(half), **kw)
+
+
+def scene_camera(scene, depsgraph, width, height):
+    cam = scene.camera
+    if cam is None:
+        raise ValueError("the scene has no camera")
+    ev = cam.evaluated_get(depsgraph) if depsgraph is not None else cam
+    r = scene.render
+    return camera_from_object(ev, width, height, pixel_aspect=r.pixel_aspect_y / r.pixel_aspect_x)
+
+
+def render_region(scene, width, height):
+    """The pixels drawn, (x0, y0, x1, y1) from the bottom left: the render border when it is on
+    (Blender's rounding: border fraction x size in float32, truncated), else the whole image."""
+    r = scene.render
+    if not r.use_border:
+        return 0, 0, width, height
+
+    def px(frac, size):
+        return int(np.float32(frac) * np.float32(size))
+
+    x0, x1 = px(r.border_min_x, width), px(r.border_max_x, width)
+    y0, y1 = px(r.border_min_y, height), px(r.border_max_y, height)
+    if x1 <= x0 or y1 <= y0:
+        raise ValueError(f"the render border ({r.border_min_x:.3f}..{r.border_max_x:.3f} x "
+                         f"{r.border_min_y:.3f}..{r.border_max_y:.3f}) covers no pixel")
+    return x0, y0, x1, y1
+
+
+# -- passes ---------------------------------------------------------------------------------------
+PASS_LAYOUT = {"Depth": (1, "Z", "VALUE"), "Value": (1, "X", "VALUE")}
+
+
+def wanted_passes(view_layer):
+    """(name, channels, channel ids, kind) of the view layer's extra passes (View Layer > Passes)."""
+    from .blender_settings import passes
+
+    return [(name, *PASS_LAYOUT[name]) for name in passes(view_layer)]
+
+
+def register_passes(engine, scene, renderlayer):
+    if scene is None or renderlayer is None:
+        return
+    engine.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
+    for name, ch, chid, kind in wanted_passes(renderlayer):
+        engine.register_pass(scene, renderlayer, name, ch, chid, kind)
+
+
+def new_device():
+    """A CPU device (its kernels cached where registration pointed kernels.cachedir)."""
+    from ...kernels.render import get_device as kernel_device
+
+    return kernel_device("CPU")
+
+
+def get_device():
+    """The process-wide device of final renders (acceleration reused across frames); its kernels
+    are loaded when it is made (LOAD_SECONDS), apart from any frame's timings."""
+    dev = _DEVICE.get("CPU")
+    if dev is None:
+        dev = new_device()
+        LOAD_SECONDS[0] = dev.load_kernels()
+        _DEVICE["CPU"] = dev
+    return dev
+
+
+def announce_compile(engine):
+    """Console and status bar say so before the kernels compile for the first time."""
+    from . import kernel_cache
+
+    kernel_cache.announce("render", status=lambda msg: engine.update_stats("", msg))
+
+
+# -- the render -----------------------------------------------------------------------------------
+def render(engine, depsgraph):
+    """RenderEngine.render body. Never raises: errors go to report/error_set."""
+    try:
+        _render(engine, depsgraph)
+    except RenderCancelled:
+        pass
+    except Exception as err:  # noqa: BLE001  (everything must surface, not just known errors)
+        traceback.print_exc()
+        msg = f"GaussVDB: {err}" if str(err) else f"GaussVDB: {type(err).__name__}"
+        LAST_STATS.clear()
+        LAST_STATS["error"] = msg
+        engine.report({"ERROR"}, msg)
+        engine.error_set(msg)
+
+
+def _render(engine, depsgraph):
+    from . import legend_overlay, scene_sync
+
+    fresh = "CPU" not in _DEVICE
+    if fresh:  # the device loads (on first use compiles) every render kernel when it is made
+        engine.update_stats("", "GaussVDB | loading the kernels")
+        announce_compile(engine)
+    device = get_device()
+    t_compile = LOAD_SECONDS[0] if fresh else 0.0
+    t0 = time.perf_counter()
+    scene = depsgraph.scene
+    width, height = render_size(scene)
+    camera = scene_camera(scene, depsgraph, width, height)
+    region = render_region(scene, width, height)
+    sync = scene_sync.SceneSync(viewport=False)
+    rscene = sync.sync(depsgraph)
+    tf = sync.transfer_function(scene.gaussvdb)
+    for msg in sync.warnings:  # log scale over values <= 0, missing sequence frames
+        engine.report({"WARNING"}, f"GaussVDB: {msg}")
+    for msg in sync.errors:  # an unreadable sequence frame: said, and the animation goes on (an
+        engine.report({"WARNING"}, f"GaussVDB: error: {msg}")  # ERROR report would stop it)
+    engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
+    device.sync(rscene)
+    t_sync = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")
+    device.begin_frame(rscene, camera, tf)  # once per frame; the bands only draw pixels
+    t_setup = time.perf_counter() - t1
+
+    def legend(combined):  # the colour legend (scene.gaussvdb.show_legend), over the image
+        return legend_overlay.composite(scene.gaussvdb, sync, tf, combined)
+
+    try:
+        cancelled, legend_drawn = _draw(engine, depsgraph, device, rscene, camera, tf, region,
+                                        legend)
+    finally:
+        device.end_frame()  # the frame's tile lists can be large
+    t_render = time.perf_counter() - t1
+    stats = dict(seconds_compile=t_compile, seconds_sync=t_sync, seconds_setup=t_setup,
+                 seconds_render=t_render, width=width, height=height, region=list(region),
+                 mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
+                 threads=device.stats.get("threads"), cancelled=cancelled,
+                 value_range=[tf.vmin, tf.vmax], warnings=list(sync.warnings),
+                 errors=list(sync.errors), frame=scene.frame_current, legend=legend_drawn)
+    LAST_STATS.clear()
+    LAST_STATS.update(stats)
+    engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "
+                            f"render {t_render:.2f} s"
+                            f"{f' | kernels {t_compile:.1f} s' if t_compile >= 0.5 else ''}"
+                            f"{' | cancelled' if cancelled else ''}")
+
+
+def _draw(engine, depsgraph, device, rscene, camera, tf, region, finish):
+    """The region's pixels, band by band, into a result of its size (with a border, Blender
+    places it in the image); ``finish(combined)`` draws over the finished image (-> whether it
+    drew). Returns (cancelled, what finish returned)."""
+    x0, y0, x1, y1 = region
+    w, h = x1 - x0, y1 - y0
+    layer_name = depsgraph.view_layer.name
+    combined = np.zeros((h, w, 4), np.float32)
+    extra = {name: np.full((h, w), 1e10 if name == "Depth" else 0.0, np.float32)
+             for name, *_ in wanted_passes(depsgraph.view_layer)}
+    result = engine.begin_result(0, 0, w, h, layer=layer_name)
+    layer = result.layers[0]
+    for name, ch, chid, _kind in wanted_passes(depsgraph.view_layer):
+        if layer.passes.find(name) < 0:
+            engine.end_result(result, cancel=True)
+            engine.add_pass(name, ch, chid, layer=layer_name)
+            result = engine.begin_result(0, 0, w, h, layer=layer_name)
+            layer = result.layers[0]
+
+    def flush():
+        layer.passes["Combined"].rect.foreach_set(combined.reshape(-1))
+        for name, buf in extra.items():
+            p = layer.passes.get(name) if hasattr(layer.passes, "get") else layer.passes[name]
+            if p is not None:
+                p.rect.foreach_set(buf.reshape(-1))
+
+    least, align = device.band_rows(rscene)  # e.g. whole screen-tile rows, two per thread
+    row = y0
+    band = least
+    cancelled = False
+    last_flush = time.perf_counter()
+    while row < y1:
+        if engine.test_break():
+            cancelled = True
+            break
+        r1 = _band_end(row, band, y1, align)
+        tb = time.perf_counter()
+        out = device.render(rscene, camera, tf, rows=(row, r1), cols=(x0, x1), cancel=engine.test_break)
+        dt = time.perf_counter() - tb
+        combined[row - y0:r1 - y0] = out["Combined"]
+        for name in extra:
+            if name in out:
+                extra[name][row - y0:r1 - y0] = out[name]
+        if device.stats.get("cancelled"):
+            cancelled = True
+            break
+        per_row = dt / max(1, r1 - row)
+        band = int(max(least, min(h, TARGET_BAND_SECONDS / max(per_row, 1e-9))))
+        row = r1
+        engine.update_progress((row - y0) / h)
+        now = time.perf_counter()
+        if row < y1 and now - last_flush > 0.5:
+            flush()
+            engine.update_result(result)
+            last_flush = now
+    finished = not cancelled and finish(combined)
+    flush()
+    engine.end_result(result)
+    return cancelled, finished
+
+
+def _band_end(row, band, end, align):
+    """The end of the band from row: on a multiple of align unless at the end."""
+    r1 = (row + band) // align * align
+    return min(end, r1 if r1 > row else row + band)
+
+
+# -- plain entry points (CLI, demo) ----------------------------------------------------------------
+def set_exact_colors(scene):
+    """Standard view transform, no look, exposure 0, gamma 1, no dither: colormaps come out
+    exact in 8-bit files (AgX, the default, maps linear 1.0 to 0.859; the default dither adds
+    +-1 noise to 8-bit output)."""
+    scene.render.dither_intensity = 0.0
+    vs = scene.view_settings
+    scene.display_settings.display_device = "sRGB"
+    vs.view_transform = "Standard"
+    vs.look = "None"
+    vs.exposure = 0.0
+    vs.gamma = 1.0
+    vs.use_curve_mapping = False
+
+
+FORMATS = {".png": "PNG", ".exr": "OPEN_EXR", ".jpg": "JPEG", ".jpeg": "JPEG", ".tif": "TIFF",
+           ".tiff": "TIFF"}
+
+
+def render_scene_to_file(scene, path, *, exact_colors=True, color_depth=None):
+    """Render ``scene`` with the GAUSSVDB engine and write ``path`` (format from the extension).
+    Returns the render's figures (LAST_STATS); raises RuntimeError with the engine's message."""
+    import os
+
+    import bpy
+
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in FORMATS:
+        raise ValueError(f"unsupported image type {ext!r}; use one of {', '.join(sorted(FORMATS))}")
+    scene.render.engine = "GAUSSVDB"
+    img = scene.render.image_settings
+    if hasattr(img, "media_type"):  # Blender 5.0: pick plain images before the file format
+        img.media_type = "IMAGE"
+    img.file_format = FORMATS[ext]
+    img.color_mode = "RGBA" if FORMATS[ext] in ("PNG", "OPEN_EXR", "TIFF") else "RGB"
+    if color_depth:
+        img.color_depth = str(color_depth)
+    elif FORMATS[ext] == "OPEN_EXR":
+        img.color_depth = "32"
+    if exact_colors:
+        set_exact_colors(scene)
+    scene.render.filepath = os.path.abspath(path)
+    scene.render.use_file_extension = False
+    LAST_STATS.clear()
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    if "error" in LAST_STATS:
+        raise RuntimeError(LAST_STATS["error"])
+    return dict(LAST_STATS)

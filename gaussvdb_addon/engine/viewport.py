@@ -1,0 +1,269 @@
+"""Rendered viewport shading for GAUSSVDB: a worker thread refines the image progressively.
+
+``view_update`` feeds depsgraph updates to a SceneSync (no update: nothing happens);
+``view_draw`` turns the region's matrices into a kernel Camera, restarts the worker when the
+view or scene changed, and draws the latest image with a few ``gpu`` calls. The worker renders
+at 1/8, 1/4, 1/2 and full resolution (the objects' Viewport LOD); while the view keeps changing
+only the 1/8 level is drawn, the finer levels follow once the view has rested ``REST_SECONDS``.
+Everything except drawing is plain Python, tested headless (``camera_from_matrices``,
+``ProgressiveSchedule``).
+"""
+
+import dataclasses
+import math
+import threading
+import time
+
+import numpy as np
+
+from ...kernels.render import Camera
+
+LEVELS = (8, 4, 2, 1)  # downscale factors, coarse to fine
+REST_SECONDS = 0.15
+
+
+# -- camera from region matrices ------------------------------------------------------------------
+def camera_from_matrices(view_matrix, window_matrix, width, height, is_perspective=None):
+    """Kernel Camera equivalent to an OpenGL-style view (world -> view) and window (projection)
+    matrix pair for a width x height image: what Blender's viewport draws, in camera view (zoom
+    and offset included in the window matrix) or not. Orthographic cameras are placed on the
+    near clip plane (Blender's ortho viewport clips symmetrically around the view centre)."""
+    v = np.array(view_matrix, np.float64).reshape(4, 4)
+    p = np.array(window_matrix, np.float64).reshape(4, 4)
+    if is_perspective is None:
+        is_perspective = abs(p[3, 3]) < 0.5
+    cam_to_world = np.linalg.inv(v)
+    big = max(width, height)
+    ex = 2.0 / p[0, 0]  # image width on the plane z = -1 (perspective) or in view units (ortho)
+    if is_perspective:
+        cx, cy = p[0, 2] / p[0, 0], p[1, 2] / p[1, 1]  # image centre on that plane
+    else:
+        cx, cy = -p[0, 3] / p[0, 0], -p[1, 3] / p[1, 1]
+    # the kernel's plane: larger side spans `bigext`, the other side the same per pixel
+    bigext = ex * big / width  # (the height gives the same for square pixels)
+    sx, sy = cx / bigext, cy / bigext
+    if is_perspective:
+        return Camera(cam_to_world, width, height, "persp", fov_x=2.0 * math.atan(0.5 * bigext),
+                      shift_x=sx, shift_y=sy)
+    near = (p[2, 3] + 1.0) / p[2, 2]  # view-space z of the near plane is -near
+    m = cam_to_world.copy()
+    m[:3, 3] = (cam_to_world @ np.array([0.0, 0.0, -near, 1.0]))[:3]
+    return Camera(m, width, height, "ortho", ortho_scale=bigext, shift_x=sx, shift_y=sy)
+
+
+def camera_from_region(region, region_data):
+    return camera_from_matrices(region_data.view_matrix, region_data.window_matrix,
+                                region.width, region.height, bool(region_data.is_perspective))
+
+
+def camera_key(cam):
+    return (cam.packed().round(12).tobytes(), cam.width, cam.height)
+
+
+def scaled_camera(cam, factor):
+    """The same view at 1/factor resolution (at least one pixel). The low-resolution image is
+    stretched over the region; rounding moves its edges by less than one coarse pixel."""
+    w = max(1, int(math.ceil(cam.width / factor)))
+    h = max(1, int(math.ceil(cam.height / factor)))
+    return dataclasses.replace(cam, width=w, height=h)  # clip range and pixel aspect kept
+
+
+# -- scheduling -----------------------------------------------------------------------------------
+class ProgressiveSchedule:
+    """Which level to render next. ``restart(now)`` on any change; ``next(now)`` returns the
+    factor to render, or None (done, or waiting for the view to rest). Level 0 always runs
+    at once; finer levels only once ``rest`` seconds passed since the last restart."""
+
+    def __init__(self, levels=LEVELS, rest=REST_SECONDS, clock=time.monotonic):
+        self.levels = tuple(levels)
+        self.rest = rest
+        self.clock = clock
+        self.generation = 0
+        self.done = len(self.levels)
+        self.changed_at = -1e9
+
+    def restart(self, now=None):
+        self.generation += 1
+        self.done = 0
+        self.changed_at = self.clock() if now is None else now
+
+    def next(self, now=None):
+        now = self.clock() if now is None else now
+        if self.done >= len(self.levels):
+            return None
+        if self.done > 0 and now - self.changed_at < self.rest:
+            return None
+        return self.levels[self.done]
+
+    def wait_time(self, now=None):
+        """Seconds until next() may return a level (0: now; None: nothing left)."""
+        now = self.clock() if now is None else now
+        if self.done >= len(self.levels):
+            return None
+        if self.done == 0:
+            return 0.0
+        return max(0.0, self.rest - (now - self.changed_at))
+
+    def finished(self, factor, generation):
+        if generation == self.generation and self.done < len(self.levels) \
+                and self.levels[self.done] == factor:
+            self.done += 1
+
+    @property
+    def converged(self):
+        return self.done >= len(self.levels)
+
+
+# -- the session ----------------------------------------------------------------------------------
+class ViewportSession:
+    def __init__(self, engine):
+        from .scene_sync import SceneSync
+
+        self.engine = engine
+        self.sync = SceneSync(viewport=True)
+        self.schedule = ProgressiveSchedule()
+        self.lock = threading.Condition()
+        self.job = None  # (generation, rscene, camera, tf)
+        self.image = None  # (generation, factor, rgba (h, w, 4) float32)
+        self.cam_key = None
+        self.scene_version = 0
+        self.error = None
+        self.thread = None
+        self.stopping = False
+        self.device = None
+        self.texture = None
+        self.texture_key = None
+        self.tf = None  # the scene transfer function of the current job (the legend shows it)
+        self.legend_cache = {}
+        self.frame = None
+
+    # -- called from Blender's main thread ---------------------------------------------------
+    def update(self, context, depsgraph):
+        first = self.sync.scene is None
+        changed = self.sync.note_updates(depsgraph.updates) or first
+        frame = depsgraph.scene.frame_current  # sequence objects follow the timeline
+        if frame != self.frame:
+            self.frame = frame
+            self.sync.dirty = changed = True
+        if not changed:
+            return False
+        self.sync.sync(depsgraph)
+        self.scene_version += 1
+        self.cam_key = None  # next draw restarts the worker
+        return True
+
+    def submit(self, rscene, camera, tf):
+        with self.lock:
+            self.schedule.restart()
+            self.job = (self.schedule.generation, rscene, camera, tf)
+            self.error = None
+            if self.thread is None or not self.thread.is_alive():
+                self.stopping = False
+                self.thread = threading.Thread(target=self._worker, name="GaussVDB viewport",
+                                               daemon=True)
+                self.thread.start()
+            self.lock.notify_all()
+
+    def draw(self, context, depsgraph):
+        region, rd = context.region, context.region_data
+        cam = camera_from_region(region, rd)
+        key = (camera_key(cam), self.scene_version)
+        if key != self.cam_key:
+            self.cam_key = key
+            if self.sync.scene is None:
+                self.sync.sync(depsgraph)
+            tf = self.sync.transfer_function(depsgraph.scene.gaussvdb)
+            self.tf = tf
+            if self.device is None and self.image is None:  # the worker's first render
+                from . import kernel_cache
+
+                kernel_cache.announce("render", status=lambda msg: self.engine.update_stats("", msg))
+            self.submit(self.sync.scene, cam, tf)
+        if self.error or self.sync.errors:
+            self.engine.update_stats("", f"GaussVDB error: {self.error or self.sync.errors[0]}")
+        with self.lock:
+            image = self.image
+        if image is None or self.sync.scene is None:
+            return
+        import bpy
+
+        if bpy.app.background:
+            return
+        self._draw_image(depsgraph.scene, image[2], region.width, region.height)
+        if depsgraph.scene.gaussvdb.show_legend and self.tf is not None:
+            from . import legend_overlay
+
+            legend_overlay.draw_viewport(depsgraph.scene.gaussvdb, self.sync, self.tf,
+                                         region.width, region.height, self.legend_cache,
+                                         self.engine, depsgraph.scene)
+        if not self.schedule.converged:
+            self.engine.tag_redraw()
+
+    def _draw_image(self, scene, rgba, width, height):
+        import gpu
+        from gpu_extras.presets import draw_texture_2d
+
+        h, w = rgba.shape[:2]
+        buf = gpu.types.Buffer("FLOAT", w * h * 4, np.minimum(rgba, 65000.0).ravel())
+        tex = gpu.types.GPUTexture((w, h), format="RGBA16F", data=buf)
+        gpu.state.blend_set("ALPHA_PREMULT")
+        self.engine.bind_display_space_shader(scene)
+        draw_texture_2d(tex, (0, 0), width, height)
+        self.engine.unbind_display_space_shader()
+        gpu.state.blend_set("NONE")
+
+    def stop(self):
+        with self.lock:
+            self.stopping = True
+            self.lock.notify_all()
+        t = self.thread
+        if t is not None and t.is_alive() and t is not threading.current_thread():
+            t.join(timeout=1.0)
+
+    # -- worker thread ------------------------------------------------------------------------
+    def step(self):
+        """Render the next scheduled level of the current job, if any; returns the factor drawn
+        (None when nothing was due). The worker loops on this; tests call it directly."""
+        with self.lock:
+            job = self.job
+            factor = self.schedule.next()
+            gen = self.schedule.generation
+        if job is None or factor is None or job[0] != gen:
+            return None
+        _, rscene, cam, tf = job
+        if self.device is None:
+            from .final_render import new_device
+
+            # its own device: a final render may run on the main thread at the same time
+            self.device = new_device()
+        c = scaled_camera(cam, factor)
+        out = self.device.render(rscene, c, tf,
+                                 cancel=lambda: self.stopping or self.schedule.generation != gen)
+        if self.device.stats.get("cancelled"):
+            return None
+        with self.lock:
+            if self.schedule.generation == gen:
+                self.image = (gen, factor, out["Combined"])
+                self.schedule.finished(factor, gen)
+        if not self.stopping:
+            try:
+                self.engine.tag_redraw()
+            except (ReferenceError, AttributeError):
+                pass
+        return factor
+
+    def _worker(self):
+        while True:
+            with self.lock:
+                if self.stopping:
+                    return
+                wait = self.schedule.wait_time()
+                if wait is None or wait > 0:
+                    self.lock.wait(timeout=0.5 if wait is None else wait)
+                    continue
+            try:
+                self.step()
+            except Exception as err:  # noqa: BLE001
+                with self.lock:
+                    self.error = str(err) or type(err).__name__
+                    self.schedule.done = len(self.schedule.levels)

@@ -1,0 +1,304 @@
+"""Import .vdb grids as Gaussian point clouds: the plain functions behind the import operator.
+
+Scripts, the operator, the Reload button and the CLI all call these:
+
+    objs = import_vdb("smoke.vdb", lods=("low", "medium"))       # -> list of Objects
+    gset = gaussian_set_from_object(objs[0], "medium")            # -> kernels.lod.GaussianSet
+
+Two phases, so an error or a cancel leaves nothing half-built: ``convert_file`` reads and converts
+everything (kernels.pipeline, no datablock), then ``build_objects`` (io/datablocks.py) creates the
+datablocks (and removes them again if creating them fails). The layout of an imported object is
+io/schema.py's.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from ...kernels import pipeline
+from ...kernels.pipeline import (  # noqa: F401  (the scripting API: importer.X)
+    ConvertedGrid,
+    ConvertedLOD,
+    default_grids,
+    lod_label,
+    order_lods,
+    split_names,
+)
+from ..properties import lod_figures
+from .datablocks import build_objects
+from .schema import (  # noqa: F401  (the scripting API: importer.X)
+    gaussian_set_from_object,
+    lod_names,
+    object_stats,
+    stored_index_to_world,
+)
+
+ImportError_ = pipeline.ConversionError  # an import failed; nothing was created
+ImportCancelled = pipeline.ConversionCancelled
+
+
+def default_grids_hint(filepath) -> str:
+    """One line for the import dialog: what an empty Grids field imports from this file."""
+    generic = "Empty Grids: every scalar grid (a Mantaflow cache: density only)"
+    path = bpy_abspath(filepath)
+    if not path or not os.path.isfile(path):
+        return generic
+    from ..engine import kernel_cache
+
+    if not kernel_cache.compiled("vdb"):  # never compile inside a dialog's draw
+        return generic
+    try:
+        st = os.stat(path)
+        key = (path, st.st_mtime_ns, st.st_size)
+        hint = _HINTS.get(key)
+        if hint is None:
+            from ...kernels import vdb
+
+            names = [g.name for g in vdb.read_topology(path).grids]
+            wanted, _ = default_grids(names)
+            if wanted is not None:
+                rest = [n for n in names if n not in wanted]
+                hint = (f"Mantaflow cache: importing {', '.join(wanted)}; name "
+                        f"{', '.join(rest)} under Grids to add them")
+            else:
+                hint = "Empty Grids: every scalar grid (" + ", ".join(names) + ")"
+            _HINTS.clear()
+            _HINTS[key] = hint
+        return hint
+    except Exception:  # noqa: BLE001  (a broken file is reported by the import itself)
+        return generic
+
+
+_HINTS = {}
+
+
+def bpy_abspath(path) -> str:
+    if not path:
+        return ""
+    try:
+        import bpy
+
+        return os.path.abspath(bpy.path.abspath(path))
+    except ImportError:
+        return os.path.abspath(path)
+
+
+def selected_paths(filepath, directory="", files=()) -> list:
+    """The files chosen in the file browser (several when shift-selected), else ``filepath``."""
+    names = [f.name for f in files if getattr(f, "name", "")] if files else []
+    if directory and names:
+        return [os.path.join(directory, n) for n in names]
+    return [filepath] if filepath else []
+
+
+# -- phase 1: read and convert (no Blender data) ---------------------------------------------------
+def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
+                  vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None, *,
+                  tolerance=0.02):
+    """kernels.pipeline.convert_steps for an import: grids whose index coordinates float32
+    attributes cannot hold exactly are refused, and the last step creates the objects."""
+    from ..engine import kernel_cache
+
+    kernel_cache.announce("vdb", "lod")
+    from .schema import ORIGIN_LIMIT
+
+    out = yield from pipeline.convert_steps(filepath, grids, lods, weights, level_set_band,
+                                            vector_magnitude, max_bytes, compute_error, skipped,
+                                            tolerance=tolerance, index_limit=ORIGIN_LIMIT)
+    yield 1.0, "creating objects"
+    return out
+
+
+
+class _Progress:
+    """Adapts a WindowManager (progress_begin/update/end) or a callable(fraction, text)."""
+
+    def __init__(self, target):
+        self.target = target
+        self.wm = target if hasattr(target, "progress_update") else None
+        if self.wm is not None:
+            try:
+                self.wm.progress_begin(0, 1000)
+            except Exception:  # noqa: BLE001 - no window (some headless contexts)
+                self.wm = None
+
+    def __call__(self, fraction, text):
+        if self.wm is not None:
+            try:
+                self.wm.progress_update(int(1000 * fraction))
+            except Exception:  # noqa: BLE001
+                pass
+        elif callable(self.target):
+            self.target(fraction, text)
+
+    def end(self):
+        if self.wm is not None:
+            try:
+                self.wm.progress_end()
+            except Exception:  # noqa: BLE001
+                pass
+
+
+def convert_file(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
+                 vector_magnitude=False, max_bytes=None, compute_error=True, progress=None,
+                 cancel=None, skipped=None, *, tolerance=0.02) -> list:
+    """Read and convert one file (no Blender data is touched). Raises ImportError_/ImportCancelled."""
+    steps = convert_steps(filepath, grids, lods, weights, level_set_band, vector_magnitude,
+                          max_bytes, compute_error, skipped, tolerance=tolerance)
+    report = _Progress(progress) if progress is not None else None
+    try:
+        return pipeline.run(steps, report, cancel)
+    finally:
+        if report is not None:
+            report.end()
+
+
+# -- the entry points ------------------------------------------------------------------------------
+def import_vdb(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
+               vector_magnitude=False, collection=None, progress=None, cancel=None, max_bytes=None,
+               compute_error=True, skipped=None) -> list:
+    """Import the grids of one .vdb file; returns the new objects (one per grid)."""
+    converted = convert_file(filepath, grids, lods, weights, level_set_band, vector_magnitude,
+                             max_bytes, compute_error, progress, cancel, skipped)
+    return build_objects(converted, collection, dict(weights=weights, level_set_band=level_set_band,
+                                                     vector_magnitude=vector_magnitude))
+
+
+def import_files(context, paths, grids=None, lods=("medium",), weights="field",
+                 level_set_band=True, vector_magnitude=False, progress=None, cancel=None,
+                 max_bytes=None, compute_error=True, sequence=True, *, tolerance=0.02):
+    """Import several files; all are converted before any object is created. -> (objects, message)
+
+    With ``sequence`` a numbered file with numbered siblings (or several numbered files
+    selected) imports as one sequence: one object per grid following the timeline."""
+    if not paths:
+        raise ImportError_("no file selected")
+    from . import sequence_import
+
+    converted = []
+    skipped = []
+    for pat, items, is_seq in sequence_import.sequences(paths) if sequence else [(None, paths, False)]:
+        if is_seq:
+            converted += sequence_import.convert_sequence(
+                pat.path(items[0]), items if len(items) > 1 else None, grids, lods, weights,
+                level_set_band, vector_magnitude, max_bytes, compute_error, progress, cancel, skipped,
+                tolerance=tolerance)
+            continue
+        for path in items if pat is None else [pat.path(n) for n in items]:
+            converted += convert_file(path, grids, lods, weights, level_set_band, vector_magnitude,
+                                      max_bytes, compute_error, progress, cancel, skipped,
+                                      tolerance=tolerance)
+    collection = None
+    if context is not None and getattr(context, "view_layer", None) is not None:
+        collection = context.view_layer.active_layer_collection.collection
+    objs = build_objects(converted, collection, dict(weights=weights, level_set_band=level_set_band,
+                                                     vector_magnitude=vector_magnitude))
+    sequence_import.name_objects(objs)
+    if context is not None and getattr(context, "view_layer", None) is not None and objs:
+        for obj in context.view_layer.objects.selected:
+            obj.select_set(False)
+        for obj in objs:
+            if context.view_layer.objects.get(obj.name) is not None:
+                obj.select_set(True)
+        if context.view_layer.objects.get(objs[-1].name) is not None:
+            context.view_layer.objects.active = objs[-1]
+    note = sequence_import.unreadable_note(objs)
+    return objs, status_message(objs, skipped) + (f"; {note}" if note else "")
+
+
+def status_message(objs, skipped=()) -> str:
+    """'density: 366,112 Gaussians (Medium) in 0.41 s, field NRMSE 0.8%, 2.9 MB; ...'"""
+    parts = []
+    for obj in objs:
+        stats = object_stats(obj)
+        if not stats:
+            continue
+        labels = " / ".join(s["label"] for s in stats)
+        counts = " / ".join(f"{s['count']:,}" for s in stats)
+        secs = sum(s["seconds"] for s in stats)
+        errs = [s.get("nrmse") for s in stats]
+        text = f"{obj.gaussvdb.grid_name}: {counts} Gaussians ({labels}) in {secs:.2f} s"
+        if all(e is not None for e in errs):
+            text += ", field NRMSE " + " / ".join(f"{100 * e:.1f}%" for e in errs)
+        text += f", {lod_figures.fmt_bytes(sum(s['bytes'] for s in stats))}"
+        bad = json.loads(obj.gaussvdb.stats_json or "{}").get("nonfinite_voxels", 0)
+        if bad:
+            text += f", {bad:,} NaN/Inf voxels made inactive"
+        parts.append(text)
+    if skipped:
+        parts.append("skipped " + ", ".join(sorted({str(n) for n, _ in skipped})))
+    compile_s = sum(json.loads(o.gaussvdb.stats_json or "{}").get("seconds_compile", 0.0) for o in objs)
+    if compile_s >= 1.0:
+        parts.append(f"kernels compiled or loaded in {compile_s:.1f} s (not in the times above)")
+    return "; ".join(parts) or "nothing imported"
+
+
+# -- reload ------------------------------------------------------------------------------------------
+def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error=True):
+    """Re-read the object's source file with the same settings and replace its Gaussians.
+
+    The object keeps its name, collections, modifiers and Viewport/Render LOD; its matrix follows the
+    file's transform unless the user moved the object since the import (then the placement stays).
+    On error nothing changes.
+    """
+    import bpy
+    from mathutils import Matrix
+
+    st = obj.gaussvdb
+    if not st.is_gaussvdb:
+        raise ImportError_(f"{obj.name} is not a GaussVDB object")
+    from . import source_path
+
+    path = source_path.absolute(st)
+    vol = st.source_volume
+    if vol is not None and vol.is_sequence:  # every frame's figures again, one frame converted
+        from . import sequence_import
+
+        converted = sequence_import.convert_sequence(
+            path, None, [st.grid_name], lod_names(obj), st.weights or "field",
+            st.level_set_band, st.vector_magnitude, max_bytes, compute_error, progress, cancel)
+        for c in converted:  # keeps the object's own Volume and its timing
+            c.sequence["settings"] = dict(frame_start=vol.frame_start, frame_offset=vol.frame_offset,
+                                          frame_duration=vol.frame_duration,
+                                          sequence_mode=vol.sequence_mode)
+    else:
+        converted = convert_file(path, [st.grid_name], lod_names(obj),
+                                 st.weights or "field", st.level_set_band, st.vector_magnitude,
+                                 max_bytes, compute_error, progress, cancel)
+    cg = next((c for c in converted if c.name == st.grid_name), None)
+    if cg is None:
+        raise ImportError_(f"{os.path.basename(path)} no longer holds grid {st.grid_name!r}")
+    old_matrix = stored_index_to_world(obj)
+    moved = not np.allclose(np.asarray(obj.matrix_world, np.float64), old_matrix, rtol=1e-6, atol=1e-9)
+    viewport, render = st.viewport_lod, st.render_lod
+    new = build_objects([cg], obj.users_collection[0] if obj.users_collection else None,
+                        dict(weights=st.weights, level_set_band=st.level_set_band,
+                             vector_magnitude=st.vector_magnitude))[0]
+    old_data = obj.data
+    try:
+        obj.data = new.data
+        # (the source path stays as the user left it: relative, or found elsewhere)
+        for key in ("grid_class", "value_type", "lods", "layout_version"):
+            setattr(st, key, getattr(new.gaussvdb, key))
+        lod_figures.copy(new.gaussvdb, st)
+        st.index_to_world = new.gaussvdb.index_to_world
+        st.leaf_box_min = new.gaussvdb.leaf_box_min
+        st.leaf_box_max = new.gaussvdb.leaf_box_max
+        names = lod_names(obj)
+        st.viewport_lod = viewport if viewport in names else names[0]
+        st.render_lod = render if render in names else names[-1]
+        if not moved:
+            obj.matrix_world = Matrix(cg.index_to_world.tolist())
+    finally:
+        pc = new.data
+        bpy.data.objects.remove(new)
+        if obj.data is not pc and pc.users == 0:
+            bpy.data.pointclouds.remove(pc)
+    if old_data is not None and old_data.users == 0:
+        bpy.data.pointclouds.remove(old_data)
+    obj.data.name = obj.name
+    obj.update_tag()
+    return obj

@@ -1,0 +1,1 @@
+"""Property groups (Scene.gaussvdb, Object.gaussvdb, ViewLayer.gaussvdb) and what they hold."""

@@ -1,0 +1,1 @@
+"""Panels, menus and lists of the properties editor."""
