@@ -31,7 +31,8 @@ def write_constant(path, value, layout):
 
 
 def _render(bpy, scene, path, mode, out):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render, importer
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.io import importer
 
     objs = importer.import_vdb(str(path), lods=("medium",), collection=scene.collection,
                                compute_error=False)

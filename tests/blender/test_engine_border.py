@@ -24,7 +24,7 @@ def _cloud_scene(bpy, scene):
 
 
 def _render_exr(bpy, scene, path):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     final_render.render_scene_to_file(scene, str(path))
     return read_image(bpy, path)
@@ -32,7 +32,7 @@ def _render_exr(bpy, scene, path):
 
 @pytest.mark.parametrize("crop", [True, False])
 def test_render_border_draws_the_region_only(bpy_module, scene, tmp_path, crop):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     bpy = bpy_module
     _cloud_scene(bpy, scene)
@@ -61,7 +61,7 @@ def test_render_border_draws_the_region_only(bpy_module, scene, tmp_path, crop):
 
 
 def test_render_border_off_or_empty(bpy_module, scene):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     bpy = bpy_module
     _cloud_scene(bpy, scene)
@@ -76,7 +76,7 @@ def test_render_border_off_or_empty(bpy_module, scene):
 
 
 def _alpha_sum(bpy, scene):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     eng = FakeEngine()
     final_render.render(eng, bpy.context.evaluated_depsgraph_get())
@@ -106,7 +106,7 @@ def test_camera_clip_start_and_end(bpy_module, scene):
 def test_camera_plane_matches_blenders_view_frame(bpy_module, scene, kind, fit, size, aspect):
     """The image rectangle of camera_from_object (sensor fit, shift, pixel aspect) against
     Blender's own camera frame for the scene."""
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     bpy = bpy_module
     ob = add_camera(bpy, scene, (0, 0, 0), (0, 0, 0), ortho_scale=3.0 if kind == "ORTHO" else None, lens=35.0)

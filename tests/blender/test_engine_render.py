@@ -27,7 +27,7 @@ def _ramp_scene(bpy, scene):
 
 
 def test_ramp_png_matches_colormap_table(bpy_module, scene, tmp_path):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
     from bl_ext.user_default.gaussvdb.kernels.render.colormaps import colormap
 
     bpy = bpy_module
@@ -77,7 +77,7 @@ def test_write_still_and_passes(bpy_module, scene, tmp_path):
 
 
 def test_test_break_stops_quickly_and_stats(bpy_module, scene):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     bpy = bpy_module
     make_object(bpy, "Cloud", lattice(16, 16, 16), values=np.linspace(0, 1, 16 ** 3))
@@ -106,7 +106,7 @@ def test_test_break_stops_quickly_and_stats(bpy_module, scene):
 def test_bands_whole_tile_rows_after_one_setup(bpy_module, scene):
     """The frame is prepared once; the bands are whole screen-tile rows (several per thread), so
     the band size never collapses to a row however long the set-up took."""
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     bpy = bpy_module
     make_object(bpy, "Cloud", lattice(16, 16, 16), values=np.linspace(0, 1, 16 ** 3))

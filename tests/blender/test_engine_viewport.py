@@ -27,7 +27,7 @@ def _two_lod_object(bpy):
 
 def test_viewport_and_render_lod(bpy_module, scene):
     bpy = bpy_module
-    ss = _mod("scene_sync")
+    ss = _mod("engine.scene_sync")
     _two_lod_object(bpy)
     dg = bpy.context.evaluated_depsgraph_get()
     r = ss.SceneSync(viewport=False)
@@ -50,7 +50,7 @@ class _Upd:
 
 def test_unchanged_depsgraph_costs_nothing(bpy_module, scene):
     bpy = bpy_module
-    ss = _mod("scene_sync")
+    ss = _mod("engine.scene_sync")
     ob = make_object(bpy, "Cloud", lattice(4, 4, 4))
     dg = bpy.context.evaluated_depsgraph_get()
     s = ss.SceneSync(viewport=True)
@@ -76,7 +76,7 @@ def test_unchanged_depsgraph_costs_nothing(bpy_module, scene):
 
 def test_viewport_session_update_skips_unchanged(bpy_module, scene):
     bpy = bpy_module
-    vp = _mod("viewport")
+    vp = _mod("engine.viewport")
     make_object(bpy, "Cloud", lattice(4, 4, 4))
     dg = bpy.context.evaluated_depsgraph_get()
 
@@ -109,7 +109,7 @@ def test_viewport_camera_equals_final_camera(bpy_module, scene, kind, fit, size,
     """Region matrices as Blender builds them for the camera view (view = inverse camera matrix,
     window = the camera's projection for the region size) give the final render's rays."""
     bpy = bpy_module
-    fr, vp = _mod("final_render"), _mod("viewport")
+    fr, vp = _mod("engine.final_render"), _mod("engine.viewport")
     w, h = size
     ob = add_camera(bpy, scene, (3.0, -8.0, 2.5), (1.2, 0.1, 0.4),
                     ortho_scale=7.0 if kind == "ORTHO" else None, lens=35.0)
@@ -139,7 +139,7 @@ def test_viewport_camera_equals_final_camera(bpy_module, scene, kind, fit, size,
 
 
 def test_progressive_schedule(addon):
-    sched_mod = _mod("viewport")
+    sched_mod = _mod("engine.viewport")
     s = sched_mod.ProgressiveSchedule(levels=(8, 4, 2, 1), rest=0.15, clock=lambda: 0.0)
     assert s.next(0.0) is None  # nothing submitted
     s.restart(now=10.0)
@@ -163,7 +163,7 @@ def test_progressive_schedule(addon):
 def test_viewport_worker_refines(bpy_module, scene):
     """The worker's step() renders 1/8 .. full resolution of the submitted view, headless."""
     bpy = bpy_module
-    fr, vp = _mod("final_render"), _mod("viewport")
+    fr, vp = _mod("engine.final_render"), _mod("engine.viewport")
     make_object(bpy, "Cloud", lattice(8, 8, 8), values=np.linspace(0, 1, 512))
     add_camera(bpy, scene, (3.5, -30.0, 3.5), (math.pi / 2, 0.0, 0.0))
     scene.render.threads_mode, scene.render.threads = "FIXED", 1

@@ -221,7 +221,7 @@ def _camera_scene(bpy, scene):
     s.auto_range, s.value_min, s.value_max = False, 0.0, 1.0  # the same colours for every file
     s.density_unit, s.density = "WORLD", 20.0
     scene.render.threads_mode, scene.render.threads = "FIXED", 2
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     final_render.set_exact_colors(scene)
     scene.render.image_settings.file_format = "PNG"
@@ -309,7 +309,7 @@ def test_disk_cache_next_to_blend_skips_conversion(bpy_module, scene, frames, re
 
 
 def test_animation_goes_on_past_an_unreadable_frame(bpy_module, scene, tmp_path):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
 
     bpy = bpy_module
     first = write_frames(str(tmp_path / "seq"), [1, 2, 3], broken=(2,))

@@ -25,7 +25,7 @@ def _mod(name):
 
 def _render(bpy):
     eng = FakeEngine()
-    _mod("final_render").render(eng, bpy.context.evaluated_depsgraph_get())
+    _mod("engine.final_render").render(eng, bpy.context.evaluated_depsgraph_get())
     assert not eng.errors, eng.errors
     return eng, eng.image().copy()
 
@@ -55,7 +55,7 @@ SMOKE, HOT = (10, 22), (42, 54)
 def test_object_tf_keeps_a_small_range_visible_beside_a_huge_one(bpy_module, scene):
     bpy = bpy_module
     _smoke, hot = _two_volumes(bpy, scene)
-    fr = _mod("final_render")
+    fr = _mod("engine.final_render")
     _, shared = _render(bpy)  # one scene TF over both: 0..1e29 squashes the smoke
     assert fr.LAST_STATS["value_range"][1] == pytest.approx(1e29, rel=1e-6)
     assert _alpha(shared, SMOKE) < 0.01 and _alpha(shared, HOT) > 0.3
@@ -78,8 +78,8 @@ def test_object_tf_keeps_a_small_range_visible_beside_a_huge_one(bpy_module, sce
 
 def test_auto_range_is_the_voxel_range_at_every_lod(bpy_module, scene):
     bpy = bpy_module
-    imp = _mod("importer")
-    scene_sync = _mod("scene_sync")
+    imp = _mod("io.importer")
+    scene_sync = _mod("engine.scene_sync")
     from kernels.render import voxel_stats
     from kernels.vdb import read_vdb
 
@@ -125,7 +125,7 @@ def test_legend_pixels_in_the_chosen_corner(bpy_module, scene):
     s = scene.gaussvdb
     s.show_legend, s.legend_corner, s.legend_size = True, "TOP_LEFT", 0.6
     _, with_legend = _render(bpy)
-    assert _mod("final_render").LAST_STATS["legend"]
+    assert _mod("engine.final_render").LAST_STATS["legend"]
     changed = np.any(np.abs(with_legend - plain) > 1e-6, axis=-1)
     ys, xs = np.nonzero(changed)
     assert ys.min() > 128 * 0.3 and xs.max() < 192 * 0.5  # top left (row 0 is the bottom)
@@ -141,7 +141,7 @@ def test_legend_pixels_in_the_chosen_corner(bpy_module, scene):
 
 def test_log_scale_warns_with_the_fraction_not_shown(bpy_module, scene, tmp_path):
     bpy = bpy_module
-    imp = _mod("importer")
+    imp = _mod("io.importer")
     dense = np.linspace(-0.6, 1.0, 16)[:, None, None] * np.ones((16, 8, 8))
     dense[dense == 0] = 0.01
     path = write_grid(tmp_path / "signed.vdb", dense.astype(np.float32), name="heat")
@@ -158,7 +158,7 @@ def test_log_scale_warns_with_the_fraction_not_shown(bpy_module, scene, tmp_path
     warn = [m for k, m in eng.reports if k == {"WARNING"}]
     assert warn == [f"GaussVDB: log scale: {100 * frac:.0f}% of the voxels of 'heat' are <= 0 "
                     "and not shown"]
-    assert _mod("final_render").LAST_STATS["warnings"] == [warn[0][len("GaussVDB: "):]]
+    assert _mod("engine.final_render").LAST_STATS["warnings"] == [warn[0][len("GaussVDB: "):]]
     assert img[..., 3].max() > 0.05  # the positive part is still drawn
     # an object's own log scale warns for that object
     scene.gaussvdb.log_scale = False
@@ -188,7 +188,7 @@ def _edit(settings):
 
 def test_picking_a_colormap_keeps_a_hand_edit_until_confirmed(bpy_module, scene):
     bpy = bpy_module
-    ramp = _mod("transfer_ramp")
+    ramp = _mod("properties.transfer_ramp")
     s = scene.gaussvdb
     s.colormap = "viridis"
     assert not ramp.is_edited(s)
@@ -212,7 +212,7 @@ def test_picking_a_colormap_keeps_a_hand_edit_until_confirmed(bpy_module, scene)
 
 def test_colormap_preset_round_trips_the_whole_ramp(bpy_module, scene):
     bpy = bpy_module
-    ramp = _mod("transfer_ramp")
+    ramp = _mod("properties.transfer_ramp")
     s = scene.gaussvdb
     s.colormap = "turbo"
     _edit(s)
