@@ -109,7 +109,7 @@ def disk_cache_dir(scene):
 
 
 def _options(st):
-    return dict(weights=st.weights or "field", level_set_band=bool(st.level_set_band),
+    return dict(weights=st.weights_rule(), level_set_band=bool(st.level_set_band),
                 vector_magnitude=bool(st.vector_magnitude))
 
 

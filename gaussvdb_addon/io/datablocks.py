@@ -84,7 +84,7 @@ def _settings_to_object(obj, cg, stats, options):
     st.grid_class = cg.grid_class
     st.value_type = cg.value_type
     st.lods = ",".join(cl.name for cl in cg.lods)
-    st.weights = options["weights"]
+    st.weight_rule = options["weights"]
     st.level_set_band = bool(options["level_set_band"])
     st.vector_magnitude = bool(options["vector_magnitude"])
     st.index_to_world = schema.index_to_world_text(cg.index_to_world)

@@ -258,7 +258,7 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
         from . import sequence_import
 
         converted = sequence_import.convert_sequence(
-            path, None, [st.grid_name], lod_names(obj), st.weights or "field",
+            path, None, [st.grid_name], lod_names(obj), st.weights_rule(),
             st.level_set_band, st.vector_magnitude, max_bytes, compute_error, progress, cancel)
         for c in converted:  # keeps the object's own Volume and its timing
             c.sequence["settings"] = dict(frame_start=vol.frame_start, frame_offset=vol.frame_offset,
@@ -266,7 +266,7 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
                                           sequence_mode=vol.sequence_mode)
     else:
         converted = convert_file(path, [st.grid_name], lod_names(obj),
-                                 st.weights or "field", st.level_set_band, st.vector_magnitude,
+                                 st.weights_rule(), st.level_set_band, st.vector_magnitude,
                                  max_bytes, compute_error, progress, cancel)
     cg = next((c for c in converted if c.name == st.grid_name), None)
     if cg is None:
@@ -275,7 +275,7 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     moved = not np.allclose(np.asarray(obj.matrix_world, np.float64), old_matrix, rtol=1e-6, atol=1e-9)
     viewport, render = st.viewport_lod, st.render_lod
     new = build_objects([cg], obj.users_collection[0] if obj.users_collection else None,
-                        dict(weights=st.weights, level_set_band=st.level_set_band,
+                        dict(weights=st.weights_rule(), level_set_band=st.level_set_band,
                              vector_magnitude=st.vector_magnitude))[0]
     old_data = obj.data
     try:

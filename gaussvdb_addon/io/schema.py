@@ -269,7 +269,7 @@ def gaussian_set_from_object(obj, lod=None, depsgraph=None):
     idx = lod_index(orig, lod)
     arrays = upgrade_arrays(read_attributes(obj, depsgraph), version)
     return gaussian_set_from_arrays(arrays, idx, lod_names(orig), object_stats(orig), st.grid_class,
-                                    st.weights, stored_index_to_world(orig), fallback_name=str(lod))
+                                    st.weights_rule(), stored_index_to_world(orig), fallback_name=str(lod))
 
 
 def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to_world,

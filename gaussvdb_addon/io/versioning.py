@@ -36,6 +36,16 @@ def upgrade_object(obj) -> bool:
     return True
 
 
+def upgrade_weights(obj) -> bool:
+    """The weight rule of an older file, stored as text (``weights``), into the enum."""
+    st = obj.gaussvdb
+    if not st.weights or obj.library is not None:
+        return False
+    st.weight_rule = st.weights_rule()
+    st.weights = ""
+    return True
+
+
 def do_versions() -> list:
     """Upgrade every GaussVDB object of the open file; the names of those upgraded."""
     done = []
@@ -45,6 +55,7 @@ def do_versions() -> list:
             continue
         try:
             moved = lod_figures.upgrade(obj)  # per-LOD figures: JSON -> collection
+            moved = upgrade_weights(obj) or moved
             if upgrade_object(obj) or moved:
                 done.append(obj.name)
         except (ValueError, KeyError) as err:  # newer layout, or no positions: the reader says so

@@ -98,7 +98,15 @@ class GaussVDBObjectSettings(ClipProps, SurfaceProps, TransferFunctionProps, bpy
     value_type: StringProperty(name="Value Type")
     lods: StringProperty(name="LODs Held",
                          description="Comma-separated LOD presets stored on the object, in gs_lod order")
-    weights: StringProperty(name="Weights", default="field")
+    weight_rule: EnumProperty(name="Weights", items=lod_names.weight_items(), default="field",
+                              description="How the Gaussians' amplitudes were set at import")
+    # Files from before weight_rule hold the rule as text here (io/versioning moves it over)
+    weights: StringProperty(name="Weights (Old Files)", default="", options={"HIDDEN"})
+
+    def weights_rule(self) -> str:
+        """The weight rule, from weight_rule or (an older file not yet upgraded: a linked
+        object) the text it was stored as."""
+        return self.weights if self.weights in lod_names.WEIGHTS else self.weight_rule
     level_set_band: BoolProperty(name="Zero-Crossing Band Only", default=True)
     vector_magnitude: BoolProperty(name="Vector Magnitude", default=False)
     viewport_lod: EnumProperty(name="Viewport LOD", items=lod_items, update=_tag,

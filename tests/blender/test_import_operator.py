@@ -123,7 +123,7 @@ def test_operator_reports_status_and_selects(scene, bpy_module):
     assert all(o.select_get() for o in objs) and bpy.context.view_layer.objects.active in objs
     # Paper weights: every amplitude is 1, so the attribute is left out.
     assert all("gs_amplitude" not in o.data.attributes for o in objs)
-    assert all(o.gaussvdb.weights == "paper" for o in objs)
+    assert all(o.gaussvdb.weight_rule == "paper" for o in objs)
 
 
 def test_lod_items_match_kernels(addon, bpy_module):

@@ -91,7 +91,7 @@ def test_reload_button_rereads_with_same_settings(scene, bpy_module, tmp_path):
     with bpy.context.temp_override(object=obj, active_object=obj):
         assert bpy.ops.gaussvdb.reload() == {"FINISHED"}
     assert obj.name == name and obj.data.name == data_name
-    assert obj.gaussvdb.lods == "low,high" and obj.gaussvdb.weights == "paper"
+    assert obj.gaussvdb.lods == "low,high" and obj.gaussvdb.weight_rule == "paper"
     gs = imp.gaussian_set_from_object(obj, "low")
     assert gs.count == 2 and np.all(gs.values == np.float32(0.25))
     # the per-LOD figures are the new file's (the collection moved onto the kept object)

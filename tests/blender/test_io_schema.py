@@ -90,3 +90,22 @@ def test_newer_layout_is_refused(scene):
     obj.gaussvdb.layout_version = schema.LAYOUT_VERSION + 1
     with pytest.raises(ValueError, match="newer than this GaussVDB reads"):
         imp.gaussian_set_from_object(obj, "low")
+
+
+def test_weight_rule_text_of_older_files_becomes_the_enum(scene, bpy_module, tmp_path):
+    bpy = bpy_module
+    imp = _mod("gaussvdb_addon.io.importer")
+    obj = imp.import_vdb(SAMPLE, grids=["density"], lods=("low",), weights="paper",
+                         compute_error=False, collection=scene.collection)[0]
+    before = imp.gaussian_set_from_object(obj, "low")
+    st = obj.gaussvdb
+    st.property_unset("weight_rule")  # as stored before the enum: the rule as text only
+    st.weights = "paper"
+    assert st.weight_rule == "field" and st.weights_rule() == "paper"  # read right before the upgrade
+    path = str(tmp_path / "weights_text.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=path)  # load_post: versioning.do_versions
+    st = bpy.data.objects[0].gaussvdb
+    assert st.weight_rule == "paper" and st.weights == ""
+    _same(imp.gaussian_set_from_object(bpy.data.objects[0], "low"), before)

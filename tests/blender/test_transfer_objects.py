@@ -279,7 +279,7 @@ def test_viewport_overlay_draws_the_legend_with_gpu(tmp_path):
     (in a separate process: a machine without EGL aborts it rather than raising)."""
     out = tmp_path / "overlay.npz"
     env = dict(os.environ, GAUSSVDB_BLENDER_EXTENSIONS=os.environ["BLENDER_USER_EXTENSIONS"])
-    proc = subprocess.run([sys.executable, os.path.join(ROOT, "tests", "legend_gpu_draw.py"), str(out)],
+    proc = subprocess.run([sys.executable, os.path.join(ROOT, "tests", "blender", "legend_gpu_draw.py"), str(out)],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     if proc.returncode != 0 and ("EGL" in proc.stderr or "epoxy" in proc.stderr) and not out.exists():
         pytest.skip("no GPU context for headless drawing here: " + proc.stderr.strip()[-200:])

@@ -2,14 +2,14 @@
 (legend_overlay.draw_viewport, the code view_draw calls) into a GPU offscreen inside a render
 engine that asks for a GPU context (headless Blender gives one there), and saves the pixels.
 
-    python tests/legend_gpu_draw.py OUT.npz
+    python tests/blender/legend_gpu_draw.py OUT.npz
 """
 import math
 import os
 import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path[:0] = [os.path.join(ROOT, "tools"), os.path.join(ROOT, "tests")]
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path[:0] = [os.path.join(ROOT, "tools"), os.path.join(ROOT, "tests", "blender")]
 
 from blender_session import addon_module, start  # noqa: E402
 
