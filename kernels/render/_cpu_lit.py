@@ -113,9 +113,10 @@ def voxel_tau(ob, ta, tb, cid, ro, rd, h, accel, objs, xfer, samp):
 
 @njit(**_hot)
 def gauss_tau(ob, ta, tb, cid, lastc, ro, rd, gauss, wext, accel, k2):
-    """Field/particles: the closed-form optical depth over [ta, tb] of the Gaussians listed in
-    leaf cell cid (extinction weights wext), each once per ray (skipped where its support box
-    covers the previous cell visited, lastc, as the primary walk does)."""
+    """Field/particles: the closed-form optical depth over the ray's [ta, tb] of the Gaussians
+    first met in leaf cell cid (extinction weights wext): each counts once, whole, in the first
+    cell of its support the ray visits (skipped where its support box covers the previous cell
+    visited, lastc, as the primary walk does)."""
     lx, ly, lz = lastc[0], lastc[1], lastc[2]
     tau = 0.0
     for j in range(accel.cell_start[cid], accel.cell_start[cid + 1]):
@@ -153,7 +154,8 @@ def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer
             ro[c] = M[c, 0] * px + M[c, 1] * py + M[c, 2] * pz + M[c, 3]
             rd[c] = M[c, 0] * dx + M[c, 1] * dy + M[c, 2] * dz
         c0, c1 = clip_interval(objs.clip[ob], px, py, pz, dx, dy, dz)
-        n = walk_object(ro[0], ro[1], ro[2], rd[0], rd[1], rd[2], max(0.0, c0), min(tmax, c1),
+        c0, c1 = max(0.0, c0), min(tmax, c1)
+        n = walk_object(ro[0], ro[1], ro[2], rd[0], rd[1], rd[2], c0, c1,
                         accel.node_min[ob], accel.node_dims[ob], accel.node_off[ob],
                         accel.node_table, accel.node_cells, accel.cell_skip, ob, iv_ta, iv_tb,
                         iv_obj, iv_cell, 0, accel.max_walk)
@@ -164,7 +166,7 @@ def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer
             if voxels:
                 tau += voxel_tau(ob, iv_ta[q], iv_tb[q], cid, ro, rd, h, accel, objs, xfer, samp)
             else:
-                tau += gauss_tau(ob, iv_ta[q], iv_tb[q], cid, lastc, ro, rd, gauss, wext, accel, k2)
+                tau += gauss_tau(ob, c0, c1, cid, lastc, ro, rd, gauss, wext, accel, k2)
                 lastc[0], lastc[1], lastc[2] = (accel.cell_xyz[cid, 0], accel.cell_xyz[cid, 1],
                                                 accel.cell_xyz[cid, 2])
     return tau

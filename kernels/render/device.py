@@ -142,7 +142,12 @@ class CPUDevice(Device):
                 hi = np.asarray(o.grid.bbox_max, np.float64)
             else:
                 lo = hi = np.zeros(3)
-            self.index_box[k] = lo, hi
+            if g1 > g0:  # the supports' box
+                reach = scene.support_k / self.gacc.g_inv[g0:g1]
+                self.index_box[k] = ((self.gacc.g_mu[g0:g1] - reach).min(0),
+                                     (self.gacc.g_mu[g0:g1] + reach).max(0))
+            else:
+                self.index_box[k] = lo, hi
             corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                                 for z in (lo[2], hi[2])])
             wc = corners @ m.T
