@@ -1,7 +1,7 @@
 """`./gaussvdb render FILE.vdb|'DIR/name_####.vdb' [--frames A-B] [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
 [--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI]
-[--level-set surface|shell] [--json]`
+[--level-set surface|shell] [--shading emission|lit] [--shadows] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
@@ -62,6 +62,12 @@ def parse(argv):
                    "(repeatable)")
     p.add_argument("--level-set", default="surface", choices=("surface", "shell"),
                    help="level sets as lit opaque surfaces (headlight) or translucent shells")
+    p.add_argument("--shading", default="emission", choices=("emission", "lit"),
+                   help="volumes glow (emission-absorption) or are lit by the scene's lights "
+                        "(a headlight here) by their gradient")
+    p.add_argument("--shadows", action="store_true",
+                   help="lit volumes: a sun from above lights them through the medium (the "
+                        "headlight casts no shadows)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
     a.width, a.height = a.size
@@ -125,12 +131,19 @@ def build_scene(bpy, objs, args, box=None):
     if args.density is not None:
         s.density_unit, s.density = "WORLD", args.density
     # else the default: density 10 per object size, about 10 optical-depth units across the box
+    if args.shadows:  # the headlight casts no shadows: a strength-1 sun, mostly from above
+        sun = bpy.data.objects.new("GaussVDB Sun", bpy.data.lights.new("GaussVDB Sun", "SUN"))
+        sun.data.energy = 1.0
+        sun.rotation_euler = (0.5, -0.4, 0.0)  # its light travels along its local -Z
+        scene.collection.objects.link(sun)
     clips = clip_collection(bpy, scene, args)
     for o in objs:
         o.gaussvdb.render_lod = args.lod
         o.gaussvdb.viewport_lod = args.lod
         o.gaussvdb.clip_collection = clips
         o.gaussvdb.level_set_style = args.level_set.upper()
+        o.gaussvdb.shading = args.shading.upper()
+        o.gaussvdb.shadows = bool(args.shadows)
     return scene
 
 

@@ -246,7 +246,7 @@ class SceneSync:
                 changed = True
             elif isinstance(idv, (bpy.types.Scene, bpy.types.Collection, bpy.types.ViewLayer,
                                   bpy.types.Texture, bpy.types.PointCloud, bpy.types.Mesh,
-                                  bpy.types.Light)):  # a light's colour or strength: surfaces
+                                  bpy.types.Light)):  # a light's colour or strength: surfaces, lit volumes
                 changed = True
                 if isinstance(idv, (bpy.types.PointCloud, bpy.types.Mesh)):
                     # data edited: every user object re-reads (names are not known here)
@@ -340,7 +340,8 @@ class SceneSync:
             objects.append(RenderObject(e.gaussians, mw, grid=e.grid, level_set_color=ls_color,
                                         name=orig.name, tf=own,
                                         clip=clip_halfspaces(gs, depsgraph, self.warnings),
-                                        surface=gs.level_set_style == "SURFACE"))
+                                        surface=gs.level_set_style == "SURFACE",
+                                        shading=gs.shading.lower(), shadows=gs.shadows))
             total += e.count
 
         for name in list(self.entries):

@@ -7,6 +7,7 @@ transfer function (the TransferFunctionProps fields) colours it instead of the s
 ``lod_stats``: each LOD's figures from the import (lod_figures.py); ``stats_json`` the object's.
 Clipping (``clip_*``): Empties that cut the object (kernels/render/clip.py), in every mode.
 ``level_set_style``: level sets as lit surfaces (default) or translucent shells.
+``shading``/``shadows``: volumes emissive (default) or lit by the scene's lights, with shadows.
 """
 
 import json
@@ -84,7 +85,23 @@ class SurfaceProps:
         description="How a level set is drawn")
 
 
-class GaussVDBObjectSettings(ClipProps, SurfaceProps, TransferFunctionProps, bpy.types.PropertyGroup):
+class VolumeShadingProps:
+    """Volumes: emission-absorption, or lit by the scene's lights (Blinn-Phong on the field's
+    gradient, as VTK shades volumes), optionally with shadows (kernels/render/_cpu_lit.py)."""
+    shading: EnumProperty(
+        name="Shading", update=_tag, default="EMISSION",
+        items=[("EMISSION", "Emission", "The transfer function's colour glows (emission-absorption)"),
+               ("LIT", "Lit", "The scene's lights (a headlight when there are none) shade the "
+                              "medium by its gradient; homogeneous regions keep their emission "
+                              "colour. Paper mode draws emission")],
+        description="How the volume is shaded")
+    shadows: BoolProperty(name="Shadows", default=False, update=_tag,
+                          description="Lit volumes: each light shines through the media in its "
+                                      "way (single scattering); the headlight casts none")
+
+
+class GaussVDBObjectSettings(ClipProps, SurfaceProps, VolumeShadingProps, TransferFunctionProps,
+                             bpy.types.PropertyGroup):
     is_gaussvdb: BoolProperty(name="GaussVDB Object", default=False)
     source_volume: PointerProperty(name="Source", type=bpy.types.Volume,
                                    description="Volume datablock holding the source file's path "

@@ -66,6 +66,11 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
         layout.operator("gaussvdb.reload", icon="FILE_REFRESH")
         if settings.grid_class == "level_set":
             layout.prop(settings, "level_set_style")
+        else:
+            row = layout.row(align=True)
+            row.prop(settings, "shading")
+            if settings.shading == "LIT":
+                row.prop(settings, "shadows")
         draw_clip(layout, settings)
 
         if not len(settings.lod_stats):

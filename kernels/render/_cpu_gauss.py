@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from ..jit import njit
+from ._cpu_lit import shade_sample
 from ._cpu_math import (
     BG_DEPTH,
     DEPTH,
@@ -54,10 +55,11 @@ from .scene import Mode
 # hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
 # sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA (and a
 # running one, FB), colour, value (0 when NaN) and value weight (0 when NaN); field keeps V, R,
-# RC, EX (value, ratios, exit) by active slot (sweep_field)
+# RC, EX (value, ratios, exit) and, for lit volumes, the gradient's terms GA (3) + t GB (3) by
+# active slot (sweep_field)
 S, E, TS, SA, C, HQ, HA, PK, FA, FB, CR, CG, CB, VAL, VW = range(15)
-V, R, RC, EX = range(8, 12)
-NF = 16
+V, R, RC, EX, GA, GB = 8, 9, 10, 11, 12, 15
+NF = 18
 SQRT_HALF = math.sqrt(0.5)
 SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
 # g_rec columns: centre (3), 1/sigma (3), extinction weight, and (tile lists) the entry bound
@@ -371,12 +373,15 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
 
 
 @njit(**_hot, inline="always")
-def _move_slot(H, act, k, j):
+def _move_slot(H, act, k, j, glit):
     act[k] = act[j]
     H[k, V] = H[j, V]
     H[k, R] = H[j, R]
     H[k, RC] = H[j, RC]
     H[k, EX] = H[j, EX]
+    if glit:
+        for c in range(6):
+            H[k, GA + c] = H[j, GA + c]
 
 
 @njit(**_hot)
@@ -398,12 +403,18 @@ def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
 
 @njit(**_hot)
 def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind, obj_tf,
-                obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev):
+                obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev, objs, xfer, wr, sgrad):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque.
     Surfaces (obj_kind 2): the mixture's first rise through 0.5 between samples (sprev: the
     object's previous sample value and index), placed by the secant; the volumes composite up to
-    it and the ray ends there (mixture_hit)."""
+    it and the ray ends there (mixture_hit). Lit volumes (objs.lit): each sample is shaded on the
+    mixture's analytic gradient, sum_g -V_g (x - mu_g) / sigma_g^2 (sgrad per object; wr the
+    world ray; _cpu_lit)."""
     q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
+    obj_lit = objs.lit
+    glit = False
+    for ob in range(obj_lit.shape[0]):
+        glit = glit or obj_lit[ob] != 0
     hstep = fs[HSTEP]
     cend = fs[CEND]
     n_obj = ro.shape[0]
@@ -426,6 +437,13 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             H[k, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
             H[k, RC] = math.exp(-2.0 * ha * hstep * hstep)
             H[k, EX] = H[h, E]
+            if glit:  # grad of this Gaussian at t: -V (GA + t GB), x - mu = o - mu + t d
+                g = hid[h]
+                ob = g_obj[g]
+                for c in range(3):
+                    i2 = g_rec[g, 3 + c] * g_rec[g, 3 + c]
+                    H[k, GA + c] = i2 * (ro[ob, c] - g_rec[g, c])
+                    H[k, GB + c] = i2 * rd[ob, c]
             cend = max(cend, H[h, E])
         if nact > 0 and ti >= cend:
             nact = 0  # every active chord has ended
@@ -438,12 +456,34 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             isamp = max(isamp + 1, int(math.ceil(ev_t[q0] / hstep - 0.5)))
             continue
         k = 0
-        if n_obj == 1:  # the sum in a register (svals[ob] += ... would store on every term)
+        if glit:
+            for ob in range(n_obj):
+                sgrad[ob, 0] = sgrad[ob, 1] = sgrad[ob, 2] = 0.0
+        if n_obj == 1 and glit:
+            sv = 0.0
+            gx = gy = gz = 0.0
+            while k < nact:
+                if H[k, EX] <= ti:
+                    nact -= 1
+                    _move_slot(H, act, k, nact, glit)
+                    continue
+                v = H[k, V]
+                sv += v
+                gx -= v * (H[k, GA] + ti * H[k, GB])
+                gy -= v * (H[k, GA + 1] + ti * H[k, GB + 1])
+                gz -= v * (H[k, GA + 2] + ti * H[k, GB + 2])
+                H[k, V] *= H[k, R]
+                H[k, R] *= H[k, RC]
+                k += 1
+            svals[0] = sv
+            sact[0] = 1
+            sgrad[0, 0], sgrad[0, 1], sgrad[0, 2] = gx, gy, gz
+        elif n_obj == 1:  # the sum in a register (svals[ob] += ... would store on every term)
             sv = 0.0
             while k < nact:
                 if H[k, EX] <= ti:  # ended before this sample: drop it
                     nact -= 1
-                    _move_slot(H, act, k, nact)
+                    _move_slot(H, act, k, nact, glit)
                     continue
                 sv += H[k, V]
                 H[k, V] *= H[k, R]
@@ -458,11 +498,15 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             while k < nact:
                 if H[k, EX] <= ti:
                     nact -= 1
-                    _move_slot(H, act, k, nact)
+                    _move_slot(H, act, k, nact, glit)
                     continue
                 ob = g_obj[hid[act[k]]]
-                svals[ob] += H[k, V]
+                v = H[k, V]
+                svals[ob] += v
                 sact[ob] = 1
+                if glit:
+                    for c in range(3):
+                        sgrad[ob, c] -= v * (H[k, GA + c] + ti * H[k, GB + c])
                 H[k, V] *= H[k, R]
                 H[k, R] *= H[k, RC]
                 k += 1
@@ -488,6 +532,9 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             y = ro[ob, 1] + ti * rd[ob, 1]
             z = ro[ob, 2] + ti * rd[ob, 2]
             sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
+            if obj_lit[ob] != 0 and samp[0] > 0.0:
+                shade_sample(samp, ob, sgrad[ob, 0], sgrad[ob, 1], sgrad[ob, 2], x, y, z, wr, ti,
+                             objs, xfer.lights, xfer.settings, tf_par[obj_tf[ob]])
             add_sample(acc, samp)
         if best >= 0:
             mixture_hit(st, best, bt, ti, hstep, ro, rd, obj_ls, tf_lut[obj_tf[best]], acc)
@@ -511,7 +558,8 @@ def sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
                                hits.mem, hits.act, scr.cb, gauss.col, gauss.val, tau_max)
     return sweep_field(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
                        hits.act, gauss.rec, gauss.obj, scr.ro, scr.rd, objs.kind, objs.tf, objs.ls,
-                       xfer.lut, xfer.par, scr.svals, scr.sact, scr.samp, scr.acc, scr.sprev)
+                       xfer.lut, xfer.par, scr.svals, scr.sact, scr.samp, scr.acc, scr.sprev, objs, xfer,
+                       scr.wr, scr.sgrad)
 
 
 @njit(**_hot)

@@ -50,6 +50,24 @@ def surface_hit(st, ob, t, gx, gy, gz, obj_ls, lut, x, y, z):
         st[DEPTH] = t
 
 
+@njit(**_hot, inline="always")
+def light_at(lights, k, px, py, pz, dx, dy, dz):
+    """Light k seen from world point p on a ray of direction d: (ok, unit direction towards it,
+    irradiance rgb, distance). Point lights fall off as 1 / r^2; the headlight shines along d."""
+    er, eg, eb = lights[k, 4], lights[k, 5], lights[k, 6]
+    kind = lights[k, 0]
+    if kind == 1.0:
+        lx, ly, lz = lights[k, 1] - px, lights[k, 2] - py, lights[k, 3] - pz
+        d2 = lx * lx + ly * ly + lz * lz
+        if not d2 > 0.0:
+            return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        dl = math.sqrt(d2)
+        return True, lx / dl, ly / dl, lz / dl, er / d2, eg / d2, eb / d2, dl
+    if kind == 0.0:
+        return True, -lights[k, 1], -lights[k, 2], -lights[k, 3], er, eg, eb, INF
+    return True, -dx, -dy, -dz, er, eg, eb, INF
+
+
 @njit(**_hot)
 def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
     """Blinn-Phong at the hit in st (see surface_hit) for the world ray o + t d: the normal is
@@ -74,20 +92,9 @@ def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
     g = ka * st[HIT_C + 1]
     b = ka * st[HIT_C + 2]
     for k in range(lights.shape[0]):
-        kind = lights[k, 0]
-        er, eg, eb = lights[k, 4], lights[k, 5], lights[k, 6]
-        if kind == 1.0:  # point: towards it, falling off as 1 / r^2
-            lx, ly, lz = lights[k, 1] - px, lights[k, 2] - py, lights[k, 3] - pz
-            d2 = lx * lx + ly * ly + lz * lz
-            if not d2 > 0.0:
-                continue
-            dl = math.sqrt(d2)
-            lx, ly, lz = lx / dl, ly / dl, lz / dl
-            er, eg, eb = er / d2, eg / d2, eb / d2
-        elif kind == 0.0:  # sun: against its travel direction
-            lx, ly, lz = -lights[k, 1], -lights[k, 2], -lights[k, 3]
-        else:  # headlight
-            lx, ly, lz = -dx, -dy, -dz
+        ok, lx, ly, lz, er, eg, eb, _ = light_at(lights, k, px, py, pz, dx, dy, dz)
+        if not ok:
+            continue
         ndl = nx * lx + ny * ly + nz * lz
         if ndl <= 0.0:
             continue

@@ -129,6 +129,7 @@ class CPUDevice(Device):
         self.w2i = np.zeros((n, 4, 4))
         self.coord_range = np.zeros((n, 3, 2))
         self.voxel_world = np.ones(n)
+        self.index_box = np.zeros((n, 2, 3))  # the lit volumes' shadow grids span these
         for k, o in enumerate(objs):
             m = o.matrix_world
             self.w2i[k] = np.linalg.inv(m)
@@ -141,6 +142,12 @@ class CPUDevice(Device):
                 hi = np.asarray(o.grid.bbox_max, np.float64)
             else:
                 lo = hi = np.zeros(3)
+            if g1 > g0:  # the supports' box
+                reach = scene.support_k / self.gacc.g_inv[g0:g1]
+                self.index_box[k] = ((self.gacc.g_mu[g0:g1] - reach).min(0),
+                                     (self.gacc.g_mu[g0:g1] + reach).max(0))
+            else:
+                self.index_box[k] = lo, hi
             corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                                 for z in (lo[2], hi[2])])
             wc = corners @ m.T
@@ -277,8 +284,9 @@ class CPUDevice(Device):
             self.sync(scene)
         mode = Mode.of(scene.mode)
         prep = self._prepare(scene, tf)
-        if mode == Mode.PARTICLES and (prep[1].kind == 2).any():
-            mode = Mode.FIELD  # surfaces are found by the field sampler: a frame with one draws as field
+        if mode == Mode.PARTICLES and ((prep[1].kind == 2).any() or (prep[1].lit != 0).any()):
+            # surfaces are found, and lit volumes shaded, by the field sampler: such a frame draws as field
+            mode = Mode.FIELD
         key = self._frame_key(mode, scene, camera, prep)
         if self._frame is not None and self._frame.key == key:
             self.stats["seconds_setup"] = 0.0
@@ -325,8 +333,42 @@ class CPUDevice(Device):
         if t_lb is not None:
             gauss.rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
         accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=mode == Mode.REFERENCE)
+        if (objects.lit == packing.LIT_SHADOWS).any():
+            objects = self._shadow_grids(mode, scene, tfs, objects, gauss, accel, transfer)
         return _Frame(mode, camera.packed(), camera.width, camera.height, gauss, objects, accel,
                       transfer)
+
+    def _shadow_grids(self, mode, scene, tfs, objects, gauss, accel, transfer):
+        """The shadowed lit volumes' grids of optical depth towards each light (_cpu_lit): points
+        SHADOW_POINTS along each object's longest index axis, shadow rays through the voxels
+        (reference) or the Gaussians with the particles' extinction weights (closed form)."""
+        from . import _cpu_lit
+
+        n = len(scene.objects)
+        grid = np.zeros((n, 8))
+        pts, owner = [], []
+        off = 0
+        nl = transfer.lights.shape[0]
+        for k in np.flatnonzero(objects.lit == packing.LIT_SHADOWS):
+            lo, hi = self.index_box[k]
+            lo, hi = lo - 0.5, hi + 0.5
+            s = max(float(np.max(hi - lo)) / (_cpu_lit.SHADOW_POINTS - 1), 1e-6)
+            dims = np.maximum(np.ceil((hi - lo) / s).astype(np.int64) + 1, 2)
+            axes = [lo[c] + s * np.arange(dims[c]) for c in range(3)]
+            p = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+            grid[k] = [*lo, s, *dims, off * nl]
+            pts.append(p)
+            owner.append(np.full(p.shape[0], k, np.int32))
+            off += p.shape[0]
+        pts, owner = np.concatenate(pts), np.concatenate(owner)
+        voxels = mode == Mode.REFERENCE
+        wext = np.zeros(1) if voxels else self._gauss_weights(Mode.PARTICLES, tfs, objects.tf,
+                                                              objects.kind, objects.ls)[0]
+        tau = np.zeros((pts.shape[0], nl))
+        i2w = np.stack([np.asarray(o.matrix_world, np.float64) for o in scene.objects])
+        with self._thread_count(scene):
+            _cpu_lit.shadow_grid(voxels, owner, pts, i2w, gauss, wext, objects, accel, transfer, tau)
+        return objects._replace(sh_grid=grid, sh_tau=tau.ravel())
 
     def band_rows(self, scene):
         # The kernels spread a band's screen-tile rows over the threads in static chunks, so a

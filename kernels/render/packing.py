@@ -20,8 +20,12 @@ from . import clip, lights
 Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi")
 # Per object: world -> index matrix, kind (0 volume, 1 level-set shell, 2 level-set surface),
 # its transfer function's row, level-set colouring (see pack_objects), sample step in voxels,
-# clip half-spaces (clip.pack) and the float32 reference point of the bounding spheres.
-Objects = namedtuple("Objects", "w2i kind tf ls step clip ref")
+# clip half-spaces (clip.pack), the float32 reference point of the bounding spheres, shading (0
+# emission, LIT, LIT_SHADOWS: volumes only, see pack_objects) and the lit volumes' shadow grids
+# (sh_grid rows [origin xyz, spacing, dims xyz, offset into sh_tau]; sh_tau: the optical depth
+# towards each light at each grid point, light fastest; _cpu_lit).
+Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau")
+LIT, LIT_SHADOWS = 1, 2
 # Acceleration: the leaf hierarchy (per-object node grids, node -> cell tables), the cells'
 # Gaussian lists (and per entry face), this frame's empty-space skips, voxel bricks (reference
 # mode), the longest leaf walk, and this frame's screen-tile lists (starts, ids, pixel masks).
@@ -39,27 +43,27 @@ Output = namedtuple("Output", "rgba depth value segs")
 # covering leaves (paper, reference), the ray per object (index space) and its clip interval, the
 # walk's last cell per object, per-object sample sums, one sample and its sums, colour bounds,
 # the ray state, the sweep state, a block of tile candidates and their tests, surfaces' previous
-# sample per object.
+# sample per object, the world ray (origin, direction) and lit volumes' field gradient per object.
 Scratch = namedtuple("Scratch", "iv_ta iv_tb iv_obj iv_cell srt bnd act_iv cov_obj cov_cell ro rd "
-                                "rclip lastc svals sact samp acc cb st qs fs cand blk sprev")
+                                "rclip lastc svals sact samp acc cb st qs fs cand blk sprev wr sgrad")
 # Per-ray hits (particles, field), grown on demand: records, Gaussian ids, the entry queue (times,
 # keys, hits), the active set (field; particles: the members carried over), the members.
 Hits = namedtuple("Hits", "rec hid ev_t ev_k ev_h act mem")
 
 # settings columns
 (SET_TMIN, SET_TAU_MAX, SET_K, SET_BG, SET_PAPER_STEPS, SET_PAPER_DEPTH,
- SET_SHADING) = 0, 1, 2, 3, 7, 8, 9
+ SET_SHADING, SET_LIT_THRESHOLD) = 0, 1, 2, 3, 7, 8, 9, 13
 
 
 def pack_settings(scene) -> np.ndarray:
-    """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth, surface shading
-    (ambient, diffuse, specular, shininess)]."""
+    """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth, Blinn-Phong shading
+    (ambient, diffuse, specular, shininess), lit volumes' gradient threshold]."""
     bg = np.asarray(scene.background, np.float64).ravel()
     bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
     return np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
                      float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
                      float(scene.paper_steps), float(scene.paper_max_depth),
-                     *(float(v) for v in scene.shading)])
+                     *(float(v) for v in scene.shading), float(scene.lit_threshold)])
 
 
 def transfer_functions(scene, tf, resample):
@@ -83,7 +87,8 @@ def pack_transfer(scene, tfs) -> Transfer:
 def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref) -> Objects:
     """ls rows: [0] 1 for a constant colour (rgb in [8:11]), else 0 and a colormap over the world
     coordinate [1:5] . (x, y, z, 1) of index points across [5:7]; [7] the voxel's world size.
-    Level sets in paper mode are shells (the paper has no surfaces)."""
+    Level sets in paper mode are shells (the paper has no surfaces); only volumes are lit, and
+    not in paper mode. The shadow grids are the device's to fill (no_shadows until then)."""
     objs = scene.objects
     n = len(objs)
     kind = np.array([(2 if o.surface and scene.mode != "paper" else 1) if o.is_level_set else 0
@@ -102,7 +107,15 @@ def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref) -> Objec
             ls[k, 8:11] = np.asarray(c, np.float64)[:3]
         ls[k, 7] = voxel_world[k]
     step = np.full(n, float(scene.step))
-    return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref)
+    lit = np.array([(LIT_SHADOWS if o.shadows else LIT)
+                    if o.shading == "lit" and not o.is_level_set and scene.mode != "paper" else 0
+                    for o in objs], np.int32)
+    return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n))
+
+
+def no_shadows(n):
+    """sh_grid, sh_tau for n objects without shadow grids (dims 0)."""
+    return np.zeros((max(n, 1), 8)), np.zeros(1)
 
 
 def empty_gaussians() -> Gaussians:

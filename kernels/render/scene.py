@@ -24,6 +24,7 @@ class Mode(IntEnum):
 
 
 MODES = tuple(m.name.lower() for m in Mode)  # RenderScene.mode's names, in Mode's order
+SHADINGS = ("emission", "lit")  # RenderObject.shading
 
 
 @dataclass
@@ -42,6 +43,10 @@ class RenderObject:
     translucent shell; the Blender layer and the CLI default to it.
     ``clip``: optional (k, 4) world half-spaces a x + b y + c z + d >= 0 the object is cut to
     (kernels.render.clip builds them from planes and boxes).
+    ``shading``: 'emission' (emission-absorption) or 'lit' (a volume: the scene's lights shade
+    each sample by Blinn-Phong on the field's gradient, RenderScene.shading and
+    lit_threshold; particles mode draws a frame with a lit volume as field; paper mode stays
+    emission). ``shadows``: lit samples see each light through the medium (single scattering).
     """
     gaussians: Any = None
     matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -52,8 +57,12 @@ class RenderObject:
     name: str = ""
     clip: Any = None
     surface: bool = False
+    shading: str = "emission"
+    shadows: bool = False
 
     def __post_init__(self):
+        if self.shading not in SHADINGS:
+            raise ValueError(f"shading must be one of {SHADINGS}, not {self.shading!r}")
         self.matrix_world = np.asarray(self.matrix_world, np.float64).reshape(4, 4)
         if self.is_level_set is None:
             gc = getattr(self.gaussians, "grid_class", None) or getattr(self.grid, "grid_class", None)
@@ -74,7 +83,10 @@ class RenderScene:
     threads: Optional[int] = None
     passes: tuple = ("Depth", "Value")
     lights: tuple = ()               # kernels.render.lights.Light; none: a headlight
-    shading: tuple = (0.1, 0.8, 0.2, 32.0)  # surfaces: Blinn-Phong ambient, diffuse, specular, shininess
+    shading: tuple = (0.1, 0.8, 0.2, 32.0)  # surfaces, lit volumes: Blinn-Phong ambient, diffuse, specular, shininess
+    # lit volumes: samples whose gradient (per voxel) is below this fraction of the transfer
+    # function's value range keep their emission colour (homogeneous regions stay unlit)
+    lit_threshold: float = 0.01
 
     def __post_init__(self):
         if self.mode not in MODES:

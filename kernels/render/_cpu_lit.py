@@ -1,0 +1,197 @@
+"""Lit volumes: the scene's lights (lights.pack) shade a volume sample by Blinn-Phong on the
+gradient of its field (shade_sample; the modes compute the gradient: trilinear voxel differences
+in reference mode, the mixture's analytic gradient in field mode), and, with shadows, by each
+light's transmittance through the media. The transmittance comes from a per-frame grid of shadow
+rays over each shadowed object's index box (shadow_grid: the same leaf walk and representation
+as the frame: voxel samples in reference mode, the Gaussians' closed-form optical depth
+otherwise), interpolated trilinearly at the sample: one shadow ray per sample would cost a
+primary ray's work at every sample.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..jit import njit, parallel_njit, prange
+from ._cpu_math import _hot, _jit, erf_span, sample_color, whitened_chord
+from ._cpu_surface import brick_xyz, light_at, trilinear
+from ._cpu_walk import clip_interval, walk_object
+from .packing import LIT_SHADOWS, SET_K, SET_LIT_THRESHOLD, SET_SHADING
+
+SHADOW_POINTS = 40  # shadow grid points along an object's longest axis
+SHADOW_STEP = 1.0   # reference mode: shadow ray sample spacing, voxels
+
+
+@njit(**_hot)
+def shadow_tau(grid, tau, nl, li, x, y, z):
+    """Optical depth towards light li at index point x, y, z from an object's shadow grid (row
+    grid: origin, spacing, dims, offset), trilinear, clamped to the grid."""
+    s = grid[3]
+    n0, n1, n2 = int(grid[4]), int(grid[5]), int(grid[6])
+    off = int(grid[7])
+    u = (min(max((x - grid[0]) / s, 0.0), n0 - 1.0), min(max((y - grid[1]) / s, 0.0), n1 - 1.0),
+         min(max((z - grid[2]) / s, 0.0), n2 - 1.0))
+    i0, j0, k0 = min(int(u[0]), n0 - 2), min(int(u[1]), n1 - 2), min(int(u[2]), n2 - 2)
+    ax, ay, az = u[0] - i0, u[1] - j0, u[2] - k0
+    v = 0.0
+    for di in range(2):
+        wx = ax if di else 1.0 - ax
+        for dj in range(2):
+            wy = ay if dj else 1.0 - ay
+            for dk in range(2):
+                w = wx * wy * (az if dk else 1.0 - az)
+                v += w * tau[off + (((i0 + di) * n1 + j0 + dj) * n2 + k0 + dk) * nl + li]
+    return v
+
+
+@njit(**_hot)
+def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, par):
+    """Blinn-Phong on a lit volume sample of object ob (samp: sigma_t, rgb, value from
+    sample_color; the rgb is replaced): gx, gy, gz the field's index-space gradient at index point
+    x, y, z; wr the world ray (origin, direction), t the sample's distance along it. Below the
+    gradient threshold (a fraction of the transfer function's value range per voxel) the
+    emission colour stays; the normal is -gradient (the medium's outside), in world space."""
+    rng = par[1] - par[0]
+    if not rng > 0.0:
+        rng = 1.0
+    if not math.sqrt(gx * gx + gy * gy + gz * gz) > settings[SET_LIT_THRESHOLD] * rng:
+        return
+    M = objs.w2i[ob]
+    nx = -(M[0, 0] * gx + M[1, 0] * gy + M[2, 0] * gz)
+    ny = -(M[0, 1] * gx + M[1, 1] * gy + M[2, 1] * gz)
+    nz = -(M[0, 2] * gx + M[1, 2] * gy + M[2, 2] * gz)
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not nn > 0.0:
+        return
+    nx, ny, nz = nx / nn, ny / nn, nz / nn
+    dx, dy, dz = wr[3], wr[4], wr[5]
+    px, py, pz = wr[0] + t * dx, wr[1] + t * dy, wr[2] + t * dz
+    ka, kd, ks, sh = (settings[SET_SHADING], settings[SET_SHADING + 1], settings[SET_SHADING + 2],
+                      settings[SET_SHADING + 3])
+    cr, cg, cb = samp[1], samp[2], samp[3]
+    r, g, b = ka * cr, ka * cg, ka * cb
+    nl = lights.shape[0]
+    shadows = objs.lit[ob] == LIT_SHADOWS
+    for k in range(nl):
+        ok, lx, ly, lz, er, eg, eb, _ = light_at(lights, k, px, py, pz, dx, dy, dz)
+        ndl = nx * lx + ny * ly + nz * lz
+        if not ok or ndl <= 0.0:
+            continue
+        if shadows:
+            tr = math.exp(-shadow_tau(objs.sh_grid[ob], objs.sh_tau, nl, k, x, y, z))
+            er, eg, eb = er * tr, eg * tr, eb * tr
+        hx, hy, hz = lx - dx, ly - dy, lz - dz
+        hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+        spec = 0.0
+        if hn > 0.0 and ks > 0.0:
+            spec = ks * (max(nx * hx + ny * hy + nz * hz, 0.0) / hn) ** sh
+        r += er * (kd * ndl * cr + spec)
+        g += eg * (kd * ndl * cg + spec)
+        b += eb * (kd * ndl * cb + spec)
+    samp[1], samp[2], samp[3] = r, g, b
+
+
+@njit(**_hot)
+def voxel_tau(ob, ta, tb, cid, ro, rd, h, accel, objs, xfer, samp):
+    """Reference mode: object ob's optical depth over [ta, tb] of a ray (index space ro, rd;
+    world t) inside leaf cell cid, by midpoint voxel samples h apart (world)."""
+    n = max(1, int(math.ceil((tb - ta) / h)))
+    hh = (tb - ta) / n
+    B = accel.bricks[cid]
+    cxyz = accel.cell_xyz[cid]
+    tau = 0.0
+    for i in range(n):
+        t = ta + (i + 0.5) * hh
+        x, y, z = ro[0] + t * rd[0], ro[1] + t * rd[1], ro[2] + t * rd[2]
+        fx, fy, fz = brick_xyz(cxyz, x, y, z)
+        sample_color(ob, trilinear(B, fx, fy, fz), x, y, z, objs.kind, objs.tf, objs.ls, xfer.lut,
+                     xfer.par, samp)
+        tau += samp[0] * hh
+    return tau
+
+
+@njit(**_hot)
+def gauss_tau(ob, ta, tb, cid, lastc, ro, rd, gauss, wext, accel, k2):
+    """Field/particles: the closed-form optical depth over the ray's [ta, tb] of the Gaussians
+    first met in leaf cell cid (extinction weights wext): each counts once, whole, in the first
+    cell of its support the ray visits (skipped where its support box covers the previous cell
+    visited, lastc, as the primary walk does)."""
+    lx, ly, lz = lastc[0], lastc[1], lastc[2]
+    tau = 0.0
+    for j in range(accel.cell_start[cid], accel.cell_start[cid + 1]):
+        g = accel.cell_items[j]
+        if wext[g] == 0.0:
+            continue
+        if (gauss.clo[g, 0] <= lx and lx <= gauss.chi[g, 0] and gauss.clo[g, 1] <= ly
+                and ly <= gauss.chi[g, 1] and gauss.clo[g, 2] <= lz and lz <= gauss.chi[g, 2]):
+            continue
+        ts, a, q = whitened_chord(ro[0], ro[1], ro[2], rd[0], rd[1], rd[2], gauss.mu, gauss.inv, g)
+        if q >= k2:
+            continue
+        hw = math.sqrt((k2 - q) / a)
+        t0, t1 = max(ts - hw, ta), min(ts + hw, tb)
+        if not t1 > t0:
+            continue
+        sa = math.sqrt(0.5 * a)
+        tau += wext[g] * math.exp(-0.5 * q) * math.sqrt(math.pi / (2.0 * a)) * erf_span(
+            sa * (t0 - ts), sa * (t1 - ts), sa * (t1 - t0))
+    return tau
+
+
+@njit(**_jit)
+def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer, iv_ta, iv_tb,
+            iv_obj, iv_cell, ro, rd, lastc, samp):
+    """Optical depth of the volumes (kind 0) along the world ray p + t d, t in [0, tmax], each
+    cut to its clip half-spaces."""
+    k2 = xfer.settings[SET_K] ** 2
+    tau = 0.0
+    for ob in range(objs.w2i.shape[0]):
+        if objs.kind[ob] != 0:
+            continue
+        M = objs.w2i[ob]
+        for c in range(3):
+            ro[c] = M[c, 0] * px + M[c, 1] * py + M[c, 2] * pz + M[c, 3]
+            rd[c] = M[c, 0] * dx + M[c, 1] * dy + M[c, 2] * dz
+        c0, c1 = clip_interval(objs.clip[ob], px, py, pz, dx, dy, dz)
+        c0, c1 = max(0.0, c0), min(tmax, c1)
+        n = walk_object(ro[0], ro[1], ro[2], rd[0], rd[1], rd[2], c0, c1,
+                        accel.node_min[ob], accel.node_dims[ob], accel.node_off[ob],
+                        accel.node_table, accel.node_cells, accel.cell_skip, ob, iv_ta, iv_tb,
+                        iv_obj, iv_cell, 0, accel.max_walk)
+        h = SHADOW_STEP / math.sqrt(rd[0] ** 2 + rd[1] ** 2 + rd[2] ** 2)  # world length
+        lastc[:] = -(1 << 62)
+        for q in range(n):
+            cid = iv_cell[q]
+            if voxels:
+                tau += voxel_tau(ob, iv_ta[q], iv_tb[q], cid, ro, rd, h, accel, objs, xfer, samp)
+            else:
+                tau += gauss_tau(ob, c0, c1, cid, lastc, ro, rd, gauss, wext, accel, k2)
+                lastc[0], lastc[1], lastc[2] = (accel.cell_xyz[cid, 0], accel.cell_xyz[cid, 1],
+                                                accel.cell_xyz[cid, 2])
+    return tau
+
+
+@parallel_njit(**_jit)
+def shadow_grid(voxels, pts_ob, pts, i2w, gauss, wext, objs, accel, xfer, out):
+    """out[p, l] = the optical depth from grid point p (index point pts[p] of object pts_ob[p])
+    towards light l, through every volume of the frame."""
+    lights = xfer.lights
+    for p in prange(pts.shape[0]):
+        mw = accel.max_walk
+        iv_ta, iv_tb = np.empty(mw), np.empty(mw)
+        iv_obj, iv_cell = np.empty(mw, np.int32), np.empty(mw, np.int32)
+        ro, rd, lastc, samp = np.empty(3), np.empty(3), np.empty(3, np.int64), np.empty(5)
+        A = i2w[pts_ob[p]]
+        x, y, z = pts[p, 0], pts[p, 1], pts[p, 2]
+        wx = A[0, 0] * x + A[0, 1] * y + A[0, 2] * z + A[0, 3]
+        wy = A[1, 0] * x + A[1, 1] * y + A[1, 2] * z + A[1, 3]
+        wz = A[2, 0] * x + A[2, 1] * y + A[2, 2] * z + A[2, 3]
+        for k in range(lights.shape[0]):
+            # the headlight shines along each view ray: no single direction to shadow it by
+            if lights[k, 0] != 0.0 and lights[k, 0] != 1.0:
+                out[p, k] = 0.0
+                continue
+            ok, lx, ly, lz, _, _, _, dist = light_at(lights, k, wx, wy, wz, 0.0, 0.0, 0.0)
+            out[p, k] = ray_tau(voxels, wx, wy, wz, lx, ly, lz, dist, gauss, wext, objs, accel,
+                                xfer, iv_ta, iv_tb, iv_obj, iv_cell, ro, rd, lastc, samp) if ok else 0.0
