@@ -15,8 +15,10 @@ in-process time, and its own ratio.
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -61,7 +63,8 @@ def main(argv=None):
     importer = addon_module("gaussvdb_addon.io.importer")
     final_render = addon_module("gaussvdb_addon.engine.final_render")
     scene_sync = addon_module("gaussvdb_addon.engine.scene_sync")
-    tmp = tempfile.mkdtemp(prefix="gaussvdb-bench-")
+    tmp = tempfile.mkdtemp(prefix="gaussvdb-bench-")  # the rendered frames: removed at exit
+    atexit.register(shutil.rmtree, tmp, True)
     rows = []
     for path in a.files:
         grid = cli_grids.choose_grid(path, None, False)

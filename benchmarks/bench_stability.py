@@ -7,7 +7,9 @@ and PASS/FAIL (FAIL rows are known bugs, see the xfail marks in the tests).
 """
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -30,7 +32,9 @@ def _nan_inf_row():
     from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
     from kernels.vdb import read_vdb
 
-    path = write_nan_inf(os.path.join(tempfile.mkdtemp(), "naninf.vdb"))
+    tmp = tempfile.mkdtemp(prefix="gaussvdb-bench-")
+    atexit.register(shutil.rmtree, tmp, True)
+    path = write_nan_inf(os.path.join(tmp, "naninf.vdb"))
     grid = read_vdb(path).grids[0]
     bad = 0
     value_bad = 0

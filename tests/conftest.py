@@ -5,7 +5,9 @@ Kernel tests never touch bpy. Blender tests use the `addon` fixture (the working
 extension `bl_ext.user_default.gaussvdb`) and the `scene` fixture (a factory-fresh empty scene).
 """
 
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 
@@ -24,7 +26,8 @@ sys.path[:0] = [os.path.join(ROOT, "tests", d) for d in ("kernels", "blender", "
 # extension (or of its wheels) never shadows the working tree, and the tests never touch the user's.
 # The extensions folder is fixed (not temporary): numba keys its on-disk cache by source path, so a
 # stable path lets later sessions reuse the compiled kernels.
-_TMP = tempfile.mkdtemp(prefix="gaussvdb-tests-")
+_TMP = tempfile.mkdtemp(prefix="gaussvdb-tests-")  # this session's Blender config: removed at exit
+atexit.register(shutil.rmtree, _TMP, True)
 os.environ["BLENDER_USER_EXTENSIONS"] = os.path.join(ROOT, ".pytest_cache", "blender_extensions")
 os.environ["BLENDER_USER_CONFIG"] = os.path.join(_TMP, "config")
 os.environ["BLENDER_USER_SCRIPTS"] = os.path.join(_TMP, "scripts")
