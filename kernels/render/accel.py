@@ -1,6 +1,9 @@
 """Acceleration data built once per scene sync (numpy): the VDB leaf hierarchy as a two-level
 sparse grid per object.
 
+The Gaussians (build_gaussians) and their per-leaf lists (add_halo_lists) are built apart: the
+screen-tile path needs no lists, so a device adds them only for the frames that walk the leaves.
+
 Index space is OpenVDB's (voxel centres at integers). Work coordinates are q = index + 0.5, so
 leaf cell c = floor(q / 8) spans index [8c - 0.5, 8c + 7.5] (exactly the VDB leaf with origin 8c)
 and node n = floor(q / 128) holds 16^3 leaf cells. Per object: a dense table over the bounding
@@ -10,6 +13,8 @@ ascending Gaussian id. All objects are packed into flat arrays with global ids.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from ..jit import njit
@@ -18,10 +23,10 @@ LEAF = 8
 NODE_LEAVES = 16
 NODE = LEAF * NODE_LEAVES
 MAX_NODE_TABLE = 1 << 26  # dense node table entries per object (sparse-enough for any VDB we read)
-# Halo-list entries (Gaussian x leaf cell) per object: each costs ~40 B while the lists are built, so
-# this bounds the sync at ~1 GB. Gaussians hundreds of leaves wide (a root tile, a world scaled far
-# beyond its voxels) would otherwise list billions of cells and exhaust memory.
-MAX_HALO_ENTRIES = 25_000_000
+# Peak bytes per halo-list entry (Gaussian x leaf cell) while add_halo_lists builds them (measured
+# with tracemalloc: ids, cell coordinates, sort keys and order, the face lists); the lists are
+# checked against the available memory before they are built, never against a fixed count.
+HALO_BYTES = 120
 
 
 def gaussian_arrays(gs):
@@ -68,6 +73,11 @@ class Accel:
 
     def __init__(self, n_obj):
         self.n_obj = n_obj
+        self.clear()
+
+    def clear(self):
+        """No cells: the hierarchy before add() (an object with Gaussians but no lists yet)."""
+        n_obj = self.n_obj
         self.node_min = np.zeros((n_obj, 3), np.int64)
         self.node_dims = np.zeros((n_obj, 3), np.int64)   # 0 dims = empty object
         self.node_off = np.zeros(n_obj, np.int64)
@@ -107,71 +117,46 @@ class Accel:
         return self
 
 
-def build_gauss_accel(objects, support_k):
-    """Gaussians of all objects + the halo-listed leaf hierarchy."""
+def _kept_arrays(gs):
+    """gaussian_arrays without the Gaussians the renderer never draws (a zero or non-finite
+    sigma, centre or amplitude)."""
+    mu, sig, v, a = gaussian_arrays(gs) if gs is not None else gaussian_arrays_empty()
+    keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
+    return mu[keep], sig[keep], v[keep], a[keep]
+
+
+def gaussian_bounds(gs):
+    """(lo, hi) of the drawn Gaussians' centres (index coords), or None when there are none."""
+    mu = _kept_arrays(gs)[0]
+    return (mu.min(0), mu.max(0)) if mu.shape[0] else None
+
+
+def build_gaussians(objects, support_k):
+    """The Gaussians of all objects, packed (ids object by object), each with the leaf-cell box of
+    its k-sigma support and a bounding sphere; the leaf hierarchy and its lists stay empty until
+    add_halo_lists (only the leaf walk, paper mode and surface normals read them)."""
     n = len(objects)
     acc = Accel(n)
+    acc.finish()
     mus, invs, vals, amps, gobj, clos, chis = [], [], [], [], [], [], []
-    starts, items, faces = [np.zeros(1, np.int64)], [], []
-    g_off = 0
     acc.g_first = np.zeros(n + 1, np.int64)
     for k, ob in enumerate(objects):
-        mu, sig, v, a = gaussian_arrays(ob.gaussians) if ob.gaussians is not None else \
-            gaussian_arrays_empty()
-        keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
-        mu, sig, v, a = mu[keep], sig[keep], v[keep], a[keep]
+        mu, sig, v, a = _kept_arrays(ob.gaussians)
         m = mu.shape[0]
-        acc.g_first[k] = g_off
-        if m:
-            r = support_k * sig
-            clo = np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF)
-            chi = np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF)
-            ext = chi - clo + 1
-            cnt = ext[:, 0] * ext[:, 1] * ext[:, 2]
-            total = int(cnt.sum())
-            if total > MAX_HALO_ENTRIES:
-                big = int(np.argmax(cnt))
-                raise MemoryError(
-                    f"object {k}: the Gaussians' {support_k:g}-sigma supports cover {total:,} leaf cells "
-                    f"(limit {MAX_HALO_ENTRIES:,}); the largest has sigma {sig[big].max():.4g} voxels and "
-                    f"covers {int(cnt[big]):,} cells alone. Use a finer LOD or fewer, smaller Gaussians.")
-            gid = np.repeat(np.arange(m, dtype=np.int64), cnt)
-            first = np.repeat(np.cumsum(cnt) - cnt, cnt)
-            rr = np.arange(gid.size, dtype=np.int64) - first
-            eyz = ext[gid, 1] * ext[gid, 2]
-            cx = clo[gid, 0] + rr // eyz
-            cy = clo[gid, 1] + (rr % eyz) // ext[gid, 2]
-            cz = clo[gid, 2] + rr % ext[gid, 2]
-            cmin = np.array([cx.min(), cy.min(), cz.min()])
-            cdim = np.array([cx.max(), cy.max(), cz.max()]) - cmin + 1
-            key = ((cx - cmin[0]) * cdim[1] + (cy - cmin[1])) * cdim[2] + (cz - cmin[2])
-            order = np.argsort(key, kind="stable")  # keeps ascending gid within a cell
-            key, gid = key[order], gid[order]
-            ukey, ufirst, ucount = np.unique(key, return_index=True, return_counts=True)
-            cxyz = np.stack([ukey // (cdim[1] * cdim[2]) + cmin[0],
-                             (ukey // cdim[2]) % cdim[1] + cmin[1],
-                             ukey % cdim[2] + cmin[2]], axis=1).astype(np.int64)
-            acc.add(k, cxyz)
-            clos.append(clo)
-            chis.append(chi)
-            starts.append(starts[-1][-1] + np.cumsum(ucount))
-            items.append((gid + g_off).astype(np.int32))
-            faces.append(_face_lists(np.repeat(np.arange(ukey.size), ucount), cx[order], cy[order],
-                                     cz[order], gid, clo, chi, ukey.size, g_off))
+        acc.g_first[k + 1] = acc.g_first[k] + m
+        r = support_k * sig
+        clos.append(np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF))
+        chis.append(np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF))
         mus.append(mu)
         invs.append(1.0 / sig)
         vals.append(v)
         amps.append(a)
         gobj.append(np.full(m, k, np.int32))
-        g_off += m
-    acc.g_first[n] = g_off
-    acc.finish()
-    acc.cell_start = np.concatenate(starts).astype(np.int64)
-    acc.cell_items = np.concatenate(items) if items else np.zeros(0, np.int32)
-    acc.face_items = np.concatenate([f[1] for f in faces]) if faces else np.zeros(0, np.int32)
-    acc.face_start = np.zeros(6 * acc.n_cells + 1, np.int64)
-    if faces:  # cells are numbered object by object, so the per-object counts line up
-        np.cumsum(np.concatenate([f[0] for f in faces]), out=acc.face_start[1:])
+    acc.cell_start = np.zeros(1, np.int64)
+    acc.cell_items = np.zeros(0, np.int32)
+    acc.face_start = np.zeros(1, np.int64)
+    acc.face_items = np.zeros(0, np.int32)
+    acc.has_lists = False
     acc.g_mu = np.ascontiguousarray(np.concatenate(mus)) if mus else np.zeros((0, 3))
     acc.g_inv = np.ascontiguousarray(np.concatenate(invs)) if invs else np.zeros((0, 3))
     acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
@@ -195,6 +180,101 @@ def build_gauss_accel(objects, support_k):
     # paper's volume factor 1/det(Sigma) (index units)
     acc.g_volfac = np.prod(acc.g_inv, axis=1) ** 2 if acc.g_inv.size else np.zeros(0)
     return acc
+
+
+def halo_entries(acc):
+    """The (Gaussian, leaf cell) pairs the halo lists would hold: each support's leaf box volume."""
+    ext = acc.g_chi - acc.g_clo + 1
+    return int(np.prod(ext, axis=1, dtype=np.int64).sum()) if ext.shape[0] else 0
+
+
+def halo_bytes(entries):
+    """Peak bytes add_halo_lists takes for that many entries (measured; see HALO_BYTES)."""
+    return int(entries) * HALO_BYTES
+
+
+def available_bytes():
+    """Memory the system can give now (Linux MemAvailable, else free pages), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_halo_memory(acc, available=None):
+    """Raise MemoryError (one line, with advice that helps) when the halo lists cannot fit in the
+    memory available (``available`` bytes; default: the system's now)."""
+    entries = halo_entries(acc)
+    need = halo_bytes(entries)
+    avail = available_bytes() if available is None else available
+    if avail is None or need <= avail:
+        return
+    raise MemoryError(
+        f"the per-leaf Gaussian lists of this scene need about {need / 2**30:.1f} GiB "
+        f"({entries:,} Gaussian-leaf pairs; {avail / 2**30:.1f} GiB available): draw it in particles "
+        f"or field mode with screen tiles (no per-leaf lists), or with a coarser LOD (fewer pairs).")
+
+
+def add_halo_lists(acc, support_k):
+    """The leaf hierarchy and, per leaf cell, the Gaussians whose support box meets it (its own
+    and its halo) and those first met per entry face; checks the memory first."""
+    check_halo_memory(acc)
+    n = acc.n_obj
+    acc.clear()
+    starts, items, faces = [np.zeros(1, np.int64)], [], []
+    for k in range(n):
+        g_off, g_end = int(acc.g_first[k]), int(acc.g_first[k + 1])
+        m = g_end - g_off
+        if m == 0:
+            continue
+        clo, chi = acc.g_clo[g_off:g_end], acc.g_chi[g_off:g_end]
+        ext = chi - clo + 1
+        cnt = ext[:, 0] * ext[:, 1] * ext[:, 2]
+        gid = np.repeat(np.arange(m, dtype=np.int64), cnt)
+        first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+        rr = np.arange(gid.size, dtype=np.int64) - first
+        del first
+        eyz = ext[gid, 1] * ext[gid, 2]
+        cx = clo[gid, 0] + rr // eyz
+        cy = clo[gid, 1] + (rr % eyz) // ext[gid, 2]
+        cz = clo[gid, 2] + rr % ext[gid, 2]
+        del rr, eyz
+        cmin = np.array([cx.min(), cy.min(), cz.min()])
+        cdim = np.array([cx.max(), cy.max(), cz.max()]) - cmin + 1
+        key = ((cx - cmin[0]) * cdim[1] + (cy - cmin[1])) * cdim[2] + (cz - cmin[2])
+        order = np.argsort(key, kind="stable")  # keeps ascending gid within a cell
+        key, gid = key[order], gid[order]
+        ukey, ucount = np.unique(key, return_counts=True)
+        del key
+        cxyz = np.stack([ukey // (cdim[1] * cdim[2]) + cmin[0],
+                         (ukey // cdim[2]) % cdim[1] + cmin[1],
+                         ukey % cdim[2] + cmin[2]], axis=1).astype(np.int64)
+        acc.add(k, cxyz)
+        starts.append(starts[-1][-1] + np.cumsum(ucount))
+        items.append((gid + g_off).astype(np.int32))
+        faces.append(_face_lists(np.repeat(np.arange(ukey.size), ucount), cx[order], cy[order],
+                                 cz[order], gid, clo, chi, ukey.size, g_off))
+    acc.finish()
+    acc.cell_start = np.concatenate(starts).astype(np.int64)
+    acc.cell_items = np.concatenate(items) if items else np.zeros(0, np.int32)
+    acc.face_items = np.concatenate([f[1] for f in faces]) if faces else np.zeros(0, np.int32)
+    acc.face_start = np.zeros(6 * acc.n_cells + 1, np.int64)
+    if faces:  # cells are numbered object by object, so the per-object counts line up
+        np.cumsum(np.concatenate([f[0] for f in faces]), out=acc.face_start[1:])
+    acc.has_lists = True
+    return acc
+
+
+def build_gauss_accel(objects, support_k):
+    """Gaussians of all objects + the halo-listed leaf hierarchy."""
+    return add_halo_lists(build_gaussians(objects, support_k), support_k)
 
 
 @njit(cache=True, nogil=True)

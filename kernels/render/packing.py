@@ -145,7 +145,7 @@ def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False) -> Accel:
     else:
         cell_start, cell_items = acc.cell_start, acc.cell_items
         face_start, face_items = acc.face_start, acc.face_items
-        if acc.g_mu.shape[0] == 0:
+        if cell_items.size == 0:  # no Gaussians, or no lists (the screen tiles need none)
             cell_items = face_items = np.zeros(1, np.int32)
         bricks = np.zeros((1, 10, 10, 10), np.float32)
         cell_xyz = acc.cell_xyz if acc.cell_xyz.size else np.zeros((1, 3), np.int64)
