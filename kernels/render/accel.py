@@ -23,10 +23,22 @@ LEAF = 8
 NODE_LEAVES = 16
 NODE = LEAF * NODE_LEAVES
 MAX_NODE_TABLE = 1 << 26  # dense node table entries per object (sparse-enough for any VDB we read)
-# Peak bytes per halo-list entry (Gaussian x leaf cell) while add_halo_lists builds them (measured
-# with tracemalloc: ids, cell coordinates, sort keys and order, the face lists); the lists are
+# Peak bytes per halo-list entry (Gaussian x cell) while add_halo_lists builds them, a cell per
+# entry at worst (measured with tracemalloc: ids, cell coordinates, sort keys and order, the face
+# lists, per cell its coordinates and list starts), and per node its cell table; the lists are
 # checked against the available memory before they are built, never against a fixed count.
-HALO_BYTES = 120
+HALO_BYTES = 320
+NODE_BYTES = 3 * 4 * NODE_LEAVES ** 3  # a node's cell table, its copy when packed, a mask
+TABLE_BYTES = 16  # per entry of a dense node table and its temporaries
+# Levels of the Gaussians' lists: a Gaussian is listed in the cells of the first level (cells of
+# LEVEL_CELLS^level leaves per axis) where its support box spans at most LEVEL_SPAN cells per axis,
+# so it has at most LEVEL_SPAN^3 entries whatever its size (a per-leaf halo grows with
+# support^3: a Low Gaussian met 125 leaves, an active tile's thousands). Each level is a grid of
+# its own that rays walk; the cells' coordinates and the Gaussians' boxes are in their level's
+# cells.
+LEVEL_CELLS = 4
+LEVEL_SPAN = 3
+MAX_LEVEL = 12  # cells of 8 * 4^12 voxels: past any index range a VDB holds
 
 
 def gaussian_arrays(gs):
@@ -75,9 +87,14 @@ class Accel:
         self.n_obj = n_obj
         self.clear()
 
-    def clear(self):
-        """No cells: the hierarchy before add() (an object with Gaussians but no lists yet)."""
-        n_obj = self.n_obj
+    def clear(self, walk_obj=None, walk_scale=None):
+        """No cells: the hierarchy before add(), over one walk grid per object (its leaves) or the
+        grids given: walk_obj[w] the object of grid w, walk_scale[w] its cell size in leaves."""
+        self.walk_obj = np.arange(self.n_obj, dtype=np.int32) if walk_obj is None else \
+            np.asarray(walk_obj, np.int32)
+        self.walk_scale = np.ones(self.n_obj, np.int64) if walk_scale is None else \
+            np.asarray(walk_scale, np.int64)
+        n_obj = self.walk_obj.shape[0]
         self.node_min = np.zeros((n_obj, 3), np.int64)
         self.node_dims = np.zeros((n_obj, 3), np.int64)   # 0 dims = empty object
         self.node_off = np.zeros(n_obj, np.int64)
@@ -88,15 +105,15 @@ class Accel:
         self.table_size = 0
 
     def add(self, k, cell_xyz):
-        """Register object k's cells (C,3) int64; returns the global id of its first cell."""
+        """Register walk grid k's cells (C,3) int64; returns the global id of its first cell."""
         first = self.n_cells
         if cell_xyz.shape[0] == 0:
             return first
         nmin, ndims, table, ncells = _cells_to_nodes(cell_xyz)
         self.node_min[k], self.node_dims[k] = nmin, ndims
         self.node_off[k] = self.table_size
-        table = np.where(table >= 0, table + self.n_nodes, -1).astype(np.int32)
-        ncells = np.where(ncells >= 0, ncells + first, -1).astype(np.int32)
+        table[table >= 0] += self.n_nodes  # in place: node tables are the sparse lists' bulk
+        ncells[ncells >= 0] += first
         self.tables.append(table)
         self.ncells_list.append(ncells)
         self.cell_xyz_list.append(cell_xyz)
@@ -138,15 +155,19 @@ def build_gaussians(objects, support_k):
     n = len(objects)
     acc = Accel(n)
     acc.finish()
-    mus, invs, vals, amps, gobj, clos, chis = [], [], [], [], [], [], []
+    mus, invs, vals, amps, gobj, clos, chis, levs = [], [], [], [], [], [], [], []
     acc.g_first = np.zeros(n + 1, np.int64)
     for k, ob in enumerate(objects):
         mu, sig, v, a = _kept_arrays(ob.gaussians)
         m = mu.shape[0]
         acc.g_first[k + 1] = acc.g_first[k] + m
         r = support_k * sig
-        clos.append(np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF))
-        chis.append(np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF))
+        lev, clo, chi = _levels(np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF),
+                                np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF),
+                                0 if ob.is_level_set and ob.surface else MAX_LEVEL)
+        levs.append(lev)
+        clos.append(clo)
+        chis.append(chi)
         mus.append(mu)
         invs.append(1.0 / sig)
         vals.append(v)
@@ -162,7 +183,9 @@ def build_gaussians(objects, support_k):
     acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
     acc.g_amp = np.concatenate(amps) if amps else np.zeros(0)
     acc.g_obj = np.concatenate(gobj) if gobj else np.zeros(0, np.int32)
-    # each Gaussian's range of leaf cells (inclusive): the kernels test it once per ray
+    # each Gaussian's level and range of that level's cells (inclusive): the kernels test it once
+    # per ray
+    acc.g_lev = np.concatenate(levs) if levs else np.zeros(0, np.int64)
     acc.g_clo = np.concatenate(clos) if clos else np.zeros((0, 3), np.int64)
     acc.g_chi = np.concatenate(chis) if chis else np.zeros((0, 3), np.int64)
     # bounding spheres for the kernels' cheap rejection: float32 centres relative to a reference
@@ -182,15 +205,56 @@ def build_gaussians(objects, support_k):
     return acc
 
 
+def _levels(clo, chi, max_level):
+    """Each Gaussian's level (the first whose cells, LEVEL_CELLS^level leaves wide, its leaf box
+    [clo, chi] spans at most LEVEL_SPAN of per axis; at most max_level) and its box in those cells."""
+    lev = np.zeros(clo.shape[0], np.int64)
+    lo, hi = clo.copy(), chi.copy()
+    for level in range(1, max_level + 1):
+        big = (hi - lo).max(axis=1, initial=0) >= LEVEL_SPAN
+        if not big.any():
+            break
+        lev[big] = level
+        lo[big] = np.floor_divide(clo[big], LEVEL_CELLS ** level)
+        hi[big] = np.floor_divide(chi[big], LEVEL_CELLS ** level)
+    return lev, lo, hi
+
+
 def halo_entries(acc):
-    """The (Gaussian, leaf cell) pairs the halo lists would hold: each support's leaf box volume."""
+    """The (Gaussian, cell) pairs the halo lists would hold: each support's box volume in the cells
+    of its level."""
     ext = acc.g_chi - acc.g_clo + 1
     return int(np.prod(ext, axis=1, dtype=np.int64).sum()) if ext.shape[0] else 0
 
 
-def halo_bytes(entries):
-    """Peak bytes add_halo_lists takes for that many entries (measured; see HALO_BYTES)."""
-    return int(entries) * HALO_BYTES
+def halo_nodes(acc):
+    """(nodes, dense node-table entries) the lists will use: the distinct nodes (NODE_LEAVES^3 cells
+    of a level) the supports' boxes meet, and per walk grid the box of its nodes. A node's cell
+    table costs 16 kB, so sparse supports need them counted."""
+    m = acc.g_clo.shape[0]
+    if m == 0:
+        return 0, 0
+    nlo = np.floor_divide(acc.g_clo, NODE_LEAVES)
+    nhi = np.floor_divide(acc.g_chi, NODE_LEAVES)
+    grid = np.repeat(np.arange(acc.n_obj), np.diff(acc.g_first)) * (MAX_LEVEL + 1) + acc.g_lev
+    # a box spans at most LEVEL_SPAN < NODE_LEAVES cells, so at most two nodes per axis: the
+    # corners' nodes are all of them (boxes left wider at MAX_LEVEL are counted whole)
+    corners = np.stack([np.stack([(nlo, nhi)[(c >> a) & 1][:, a] for a in range(3)], 1)
+                        for c in range(8)]).reshape(-1, 3)
+    keys = np.unique(np.column_stack([np.tile(grid, 8), corners]), axis=0)
+    wide = np.prod(nhi - nlo + 1, axis=1) > 8
+    nodes = keys.shape[0] + int(np.prod(nhi[wide] - nlo[wide] + 1, axis=1).sum())
+    table = 0
+    for gk in np.unique(keys[:, 0]):
+        k = keys[keys[:, 0] == gk, 1:]
+        table += int(np.prod(k.max(0) - k.min(0) + 1))
+    return nodes, table
+
+
+def halo_bytes(entries, nodes=0, table=0):
+    """Peak bytes add_halo_lists takes at most for that many entries, nodes and node-table entries
+    (see HALO_BYTES)."""
+    return int(entries) * HALO_BYTES + int(nodes) * NODE_BYTES + int(table) * TABLE_BYTES
 
 
 def available_bytes():
@@ -212,7 +276,7 @@ def check_halo_memory(acc, available=None):
     """Raise MemoryError (one line, with advice that helps) when the halo lists cannot fit in the
     memory available (``available`` bytes; default: the system's now)."""
     entries = halo_entries(acc)
-    need = halo_bytes(entries)
+    need = halo_bytes(entries, *halo_nodes(acc))
     avail = available_bytes() if available is None else available
     if avail is None or need <= avail:
         return
@@ -227,14 +291,19 @@ def add_halo_lists(acc, support_k):
     and its halo) and those first met per entry face; checks the memory first."""
     check_halo_memory(acc)
     n = acc.n_obj
-    acc.clear()
+    # walk grids: each object's leaves first (grid k = object k), then its coarser levels
+    g_ob = np.repeat(np.arange(n), np.diff(acc.g_first))
+    coarse = sorted(set(zip(g_ob[acc.g_lev > 0].tolist(), acc.g_lev[acc.g_lev > 0].tolist())))
+    grids = [(k, 0) for k in range(n)] + coarse
+    acc.clear([k for k, _ in grids], [LEVEL_CELLS ** lv for _, lv in grids])
     starts, items, faces = [np.zeros(1, np.int64)], [], []
-    for k in range(n):
-        g_off, g_end = int(acc.g_first[k]), int(acc.g_first[k + 1])
-        m = g_end - g_off
+    for w, (k, lv) in enumerate(grids):
+        sel = np.arange(acc.g_first[k], acc.g_first[k + 1])
+        sel = sel[acc.g_lev[sel] == lv]  # this grid's Gaussians, ascending ids
+        m = sel.size
         if m == 0:
             continue
-        clo, chi = acc.g_clo[g_off:g_end], acc.g_chi[g_off:g_end]
+        clo, chi = acc.g_clo[sel], acc.g_chi[sel]
         ext = chi - clo + 1
         cnt = ext[:, 0] * ext[:, 1] * ext[:, 2]
         gid = np.repeat(np.arange(m, dtype=np.int64), cnt)
@@ -256,17 +325,18 @@ def add_halo_lists(acc, support_k):
         cxyz = np.stack([ukey // (cdim[1] * cdim[2]) + cmin[0],
                          (ukey // cdim[2]) % cdim[1] + cmin[1],
                          ukey % cdim[2] + cmin[2]], axis=1).astype(np.int64)
-        acc.add(k, cxyz)
+        acc.add(w, cxyz)
         starts.append(starts[-1][-1] + np.cumsum(ucount))
-        items.append((gid + g_off).astype(np.int32))
-        faces.append(_face_lists(np.repeat(np.arange(ukey.size), ucount), cx[order], cy[order],
-                                 cz[order], gid, clo, chi, ukey.size, g_off))
+        items.append(sel[gid].astype(np.int32))
+        counts, fitems = _face_lists(np.repeat(np.arange(ukey.size), ucount), cx[order], cy[order],
+                                     cz[order], gid, clo, chi, ukey.size, 0)
+        faces.append((counts, sel[fitems].astype(np.int32)))
     acc.finish()
     acc.cell_start = np.concatenate(starts).astype(np.int64)
     acc.cell_items = np.concatenate(items) if items else np.zeros(0, np.int32)
     acc.face_items = np.concatenate([f[1] for f in faces]) if faces else np.zeros(0, np.int32)
     acc.face_start = np.zeros(6 * acc.n_cells + 1, np.int64)
-    if faces:  # cells are numbered object by object, so the per-object counts line up
+    if faces:  # cells are numbered grid by grid, so the per-grid counts line up
         np.cumsum(np.concatenate([f[0] for f in faces]), out=acc.face_start[1:])
     acc.has_lists = True
     return acc
