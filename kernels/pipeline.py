@@ -182,13 +182,15 @@ def convert_lod(grid, name, weights="field", level_set_band=True, compute_error=
     except MemoryError as err:
         raise ConversionError(f"{grid.name}: out of memory building the {name} LOD") from err
     seconds = time.perf_counter() - t0
-    error = {}
+    error, seconds_error = {}, 0.0
     if compute_error:
+        t0 = time.perf_counter()
         try:
             error = measure_error(grid, gset)
         except MemoryError:
             error = {}
-    return ConvertedLOD(name, gset, seconds, error, time.perf_counter() - t0 - seconds)
+        seconds_error = time.perf_counter() - t0
+    return ConvertedLOD(name, gset, seconds, error, seconds_error)
 
 
 def measure_error(grid, gset) -> dict:
