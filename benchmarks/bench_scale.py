@@ -7,8 +7,9 @@ scaling exponent of each (the slope of log seconds over log active voxels).
                                      [--modes particles,reference] [--size 256] [--quick]
 
 --quick: the 2x file only. Each measurement runs in a process of its own, so its peak memory
-(ru_maxrss, which includes reading the file the step starts from) is its own; the series is written with the bundled openvdb (trilinear upsampling,
-slab by slab, so making it needs memory for a few slabs only).
+(ru_maxrss, which includes reading the file the step starts from) is its own; the series is
+written with the bundled openvdb (trilinear upsampling, slab by slab, so making it needs memory
+for a few slabs only). A read is timed the second time in its process (the kernels loaded).
 """
 from __future__ import annotations
 

@@ -234,14 +234,15 @@ def halo_nodes(acc):
     m = acc.g_clo.shape[0]
     if m == 0:
         return 0, 0
-    nlo = np.floor_divide(acc.g_clo, NODE_LEAVES)
-    nhi = np.floor_divide(acc.g_chi, NODE_LEAVES)
     grid = np.repeat(np.arange(acc.n_obj), np.diff(acc.g_first)) * (MAX_LEVEL + 1) + acc.g_lev
+    boxes = _unique_rows(np.column_stack([grid, np.floor_divide(acc.g_clo, NODE_LEAVES),
+                                          np.floor_divide(acc.g_chi, NODE_LEAVES)]))
+    grid, nlo, nhi = boxes[:, 0], boxes[:, 1:4], boxes[:, 4:7]
     # a box spans at most LEVEL_SPAN < NODE_LEAVES cells, so at most two nodes per axis: the
     # corners' nodes are all of them (boxes left wider at MAX_LEVEL are counted whole)
     corners = np.stack([np.stack([(nlo, nhi)[(c >> a) & 1][:, a] for a in range(3)], 1)
                         for c in range(8)]).reshape(-1, 3)
-    keys = np.unique(np.column_stack([np.tile(grid, 8), corners]), axis=0)
+    keys = _unique_rows(np.column_stack([np.tile(grid, 8), corners]))
     wide = np.prod(nhi - nlo + 1, axis=1) > 8
     nodes = keys.shape[0] + int(np.prod(nhi[wide] - nlo[wide] + 1, axis=1).sum())
     table = 0
@@ -249,6 +250,24 @@ def halo_nodes(acc):
         k = keys[keys[:, 0] == gk, 1:]
         table += int(np.prod(k.max(0) - k.min(0) + 1))
     return nodes, table
+
+
+def _unique_rows(rows):
+    """np.unique(rows, axis=0) for int64 rows, through one int64 key per row where the rows'
+    ranges allow it (sorting void rows is ~10x slower)."""
+    lo = rows.min(0)
+    span = rows.max(0) - lo + 1
+    if float(np.prod(span.astype(np.float64))) >= 2.0 ** 62:
+        return np.unique(rows, axis=0)
+    key = np.zeros(rows.shape[0], np.int64)
+    for a in range(rows.shape[1]):
+        key = key * span[a] + (rows[:, a] - lo[a])
+    key = np.unique(key)
+    out = np.empty((key.size, rows.shape[1]), np.int64)
+    for a in range(rows.shape[1] - 1, -1, -1):
+        out[:, a] = key % span[a] + lo[a]
+        key //= span[a]
+    return out
 
 
 def halo_bytes(entries, nodes=0, table=0):
