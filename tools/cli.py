@@ -47,4 +47,11 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    code = main(sys.argv[1:])
+    if sys.argv[1:2] == ["convert"]:
+        # its JSON times the whole command (seconds_total): skip tearing down the ~700 modules
+        # numba loads, 0.3 s after the work is done and written
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)

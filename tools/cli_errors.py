@@ -178,8 +178,8 @@ def run(command: str, main, argv: list) -> int:
         code, prog, msg = err.exit_code, err.prog or command, str(err)
     except KeyboardInterrupt:
         code, prog, msg = 130, command, "interrupted"
-    except MemoryError:
-        code, prog, msg = 1, command, "out of memory"
+    except MemoryError as err:  # the renderer's estimate says what it needs and what helps
+        code, prog, msg = 1, command, str(err) or "out of memory"
     except SystemExit as err:  # argparse --help (0) passes; a message becomes the one line
         if err.code is None or isinstance(err.code, int):
             raise

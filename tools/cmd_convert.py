@@ -4,7 +4,12 @@
 
 Reads one grid (default: the first scalar grid with active voxels; a Mantaflow cache: density),
 builds its Gaussians through kernels.pipeline (the add-on's import runs the same conversion),
-measures the field error and prints one JSON object (indented; one line with --json). With
+measures the field error and prints one JSON object (indented; one line with --json). Times:
+each phase (PHASES: start-up of the process, the file's topology, read, preparation, kernels'
+loading, LOD build, field error, compact encoding, --out write) and seconds_total, the whole
+command up to printing (seconds_other: what no phase covers); seconds_convert is build + error +
+encoding (the conversion after reading) and mvoxels_per_second the active voxels over read +
+seconds_convert. With
 `--lod adaptive` the object also says whether the tolerance was met (and a warning on stderr says
 what was met when it was not). --out
 writes the compact encoding (kernels.lod.encode_compact) as an .npz that kernels.lod.decode_compact
@@ -27,6 +32,26 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling to
 
 import cli_errors  # noqa: E402
 
+T_START = time.perf_counter()  # when the command's own code began (see started_seconds_ago)
+
+
+def started_seconds_ago() -> float:
+    """Seconds since this process started (Linux: its start time; else since T_START), so that
+    seconds_total covers the interpreter's start-up too."""
+    try:
+        with open("/proc/self/stat") as f:
+            ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            up = float(f.read().split()[0])
+        return max(up - ticks / os.sysconf("SC_CLK_TCK"), time.perf_counter() - T_START)
+    except (OSError, ValueError, IndexError):
+        return time.perf_counter() - T_START
+
+
+# The command's phases in order; with seconds_other they sum to seconds_total.
+PHASES = ("seconds_start", "seconds_topology", "seconds_read", "seconds_prepare", "seconds_compile",
+          "seconds_build", "seconds_error", "seconds_encode", "seconds_write")
+
 
 def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=True, error=True,
             out=None, vector_magnitude=False, **thresholds) -> dict:
@@ -36,7 +61,11 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
     from kernels import pipeline
     from kernels.lod import encode_compact, encoded_nbytes, paper_model_bytes
 
+    t_start = started_seconds_ago()
+    t0 = time.perf_counter()
     name = cli_grids.choose_grid(path, grid, vector_magnitude)
+    t_topology = time.perf_counter() - t0
+    t0 = time.perf_counter()
     with warnings.catch_warnings():  # NaN/Inf voxels: said in one line below
         warnings.filterwarnings("ignore", message=".*non-finite", category=RuntimeWarning)
         try:
@@ -45,22 +74,33 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
                                        value_figures=False)[0]
         except pipeline.ConversionError as err:
             raise cli_errors.InputError(str(err)) from err
+    t_pipeline = time.perf_counter() - t0
     if cg.nonfinite_voxels:
         print(f"gaussvdb convert: warning: {cg.nonfinite_voxels:,} NaN/Inf voxels of grid {cg.name!r} "
               "made inactive", file=sys.stderr)
     cl = cg.lods[0]
     gs = cl.gset
+    t0 = time.perf_counter()
     enc = encode_compact(gs)
     nbytes = encoded_nbytes(enc)
+    t_encode = time.perf_counter() - t0
+    # phases: reading the file, the rest of the pipeline's preparation (sanitizing, the grid's
+    # figures), loading the kernels, building the LOD, its field error, the compact encoding
+    phases = dict(seconds_start=t_start, seconds_topology=t_topology, seconds_read=cg.seconds_read,
+                  seconds_prepare=max(0.0, t_pipeline - cg.seconds_read - cg.seconds_compile
+                                      - cl.seconds - cl.seconds_error),
+                  seconds_compile=cg.seconds_compile, seconds_build=cl.seconds,
+                  seconds_error=cl.seconds_error, seconds_encode=t_encode)
+    seconds_convert = cl.seconds + cl.seconds_error + t_encode
     res = {
         "file": os.path.basename(path), "grid": cg.name, "class": cg.grid_class, "lod": lod,
         "weights": weights, "active_voxels": cg.active_voxels, "leaves": cg.leaves,
         "tiles": cg.tiles, "gaussians": gs.count,
         "spheres": gs.n_spheres, "ellipsoids": gs.n_ellipsoids, "bytes": nbytes,
         "bytes_per_gaussian": nbytes / gs.count if gs.count else 0.0,
-        "paper_model_bytes": paper_model_bytes(gs), "seconds_read": cg.seconds_read,
-        "seconds_convert": cl.seconds,
-        "mvoxels_per_second": cg.active_voxels / (cg.seconds_read + cl.seconds) / 1e6,
+        "paper_model_bytes": paper_model_bytes(gs), **phases,
+        "seconds_convert": seconds_convert,
+        "mvoxels_per_second": cg.active_voxels / max(cg.seconds_read + seconds_convert, 1e-9) / 1e6,
         "kept_voxels": int(gs.voxels.astype(np.int64).sum()),
         "level_set_band": bool(gs.params.get("level_set_band", False)),
         "nonfinite_voxels": cg.nonfinite_voxels,
@@ -81,12 +121,22 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
             raise MemoryError  # the field error could not be measured
         res.update(field_rmse=e["rmse"], field_nrmse=e["nrmse"], field_max_abs=e["max_abs"],
                    field_nrmse_denominator=e["nrmse_denominator"], field_reference=e["reference"],
-                   field_k_sigma=e["k_sigma"], seconds_error=e["seconds"])
+                   field_k_sigma=e["k_sigma"])
         if "surface_iou" in e:
             res.update(surface_iou=e["surface_iou"], surface_mismatch=e["surface_mismatch"])
+    t0 = time.perf_counter()
     if out:
         np.savez(out, **enc)
         res["out"] = out
+    res["seconds_write"] = time.perf_counter() - t0
+    return res
+
+
+def finish_timing(res):
+    """seconds_total (from the process's start to now, just before printing) and seconds_other:
+    what no phase covers (the figures' assembly, argument parsing)."""
+    res["seconds_total"] = started_seconds_ago()
+    res["seconds_other"] = res["seconds_total"] - sum(res[k] for k in PHASES)
     return res
 
 
@@ -196,6 +246,7 @@ def main(argv: list[str]) -> int:
         return 1 if res["errors"] else 0
     res = convert(a.file, a.grid, a.lod, a.weights, level_set_band=not a.no_band,
                   error=not a.no_error, out=a.out, vector_magnitude=a.vector_magnitude, **th)
+    res = finish_timing(res)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0
 

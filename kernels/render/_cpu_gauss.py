@@ -573,12 +573,13 @@ def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, ta
     cell_xyz, cell_start, cell_items = accel.cell_xyz, accel.cell_start, accel.cell_items
     face_start, face_items = accel.face_start, accel.face_items
     sweep_start(mode, qs, scr.fs, scr.cb, rd, objs.step)
-    for ob in range(ro.shape[0]):
-        lastc[ob, 0] = -(1 << 62)
+    for w in range(lastc.shape[0]):
+        lastc[w, 0] = -(1 << 62)
     for q in range(n):
-        # --- 1. test the Gaussians first met in cell q
+        # --- 1. test the Gaussians first met in cell q (of walk grid w: a level of object ob)
         iv = scr.srt[q]
-        ob = scr.iv_obj[iv]
+        w = scr.iv_obj[iv]
+        ob = accel.walk_obj[w]
         cid = scr.iv_cell[iv]
         ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
         dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
@@ -590,7 +591,7 @@ def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, ta
         dd32 = dx32 * dx32 + dy32 * dy32 + dz32 * dz32
         near = ox32 * ox32 + oy32 * oy32 + oz32 * oz32 < 1e8  # float32 good to ~1e-3 voxel
         cx, cy, cz = cell_xyz[cid, 0], cell_xyz[cid, 1], cell_xyz[cid, 2]
-        lx, ly, lz = lastc[ob, 0], lastc[ob, 1], lastc[ob, 2]
+        lx, ly, lz = lastc[w, 0], lastc[w, 1], lastc[w, 2]
         f = entry_face(cx - lx, cy - ly, cz - lz)
         if f >= 0:  # came from the face neighbour: only the Gaussians that start here
             lst = face_items
@@ -618,9 +619,9 @@ def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, ta
             if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tno, tfo, H, hid, ev_t, ev_k, ev_h,
                         qs) != 0:
                 return OVERFLOW
-        lastc[ob, 0] = cx
-        lastc[ob, 1] = cy
-        lastc[ob, 2] = cz
+        lastc[w, 0] = cx
+        lastc[w, 1] = cy
+        lastc[w, 2] = cz
         # --- 2. sweep what is complete before the next cell's entry
         horizon = scr.iv_ta[scr.srt[q + 1]] if q + 1 < n else INF
         if sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):

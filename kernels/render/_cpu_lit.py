@@ -143,10 +143,12 @@ def gauss_tau(ob, ta, tb, cid, lastc, ro, rd, gauss, wext, accel, k2):
 def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer, iv_ta, iv_tb,
             iv_obj, iv_cell, ro, rd, lastc, samp):
     """Optical depth of the volumes (kind 0) along the world ray p + t d, t in [0, tmax], each
-    cut to its clip half-spaces."""
+    cut to its clip half-spaces; over every walk grid (an object's leaves, then the coarser
+    levels that list its wider Gaussians: each Gaussian is in one grid only)."""
     k2 = xfer.settings[SET_K] ** 2
     tau = 0.0
-    for ob in range(objs.w2i.shape[0]):
+    for w in range(accel.walk_obj.shape[0]):
+        ob = accel.walk_obj[w]
         if objs.kind[ob] != 0:
             continue
         M = objs.w2i[ob]
@@ -156,9 +158,9 @@ def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer
         c0, c1 = clip_interval(objs.clip[ob], px, py, pz, dx, dy, dz)
         c0, c1 = max(0.0, c0), min(tmax, c1)
         n = walk_object(ro[0], ro[1], ro[2], rd[0], rd[1], rd[2], c0, c1,
-                        accel.node_min[ob], accel.node_dims[ob], accel.node_off[ob],
-                        accel.node_table, accel.node_cells, accel.cell_skip, ob, iv_ta, iv_tb,
-                        iv_obj, iv_cell, 0, accel.max_walk)
+                        accel.node_min[w], accel.node_dims[w], accel.node_off[w],
+                        accel.node_table, accel.node_cells, accel.cell_skip, w, iv_ta, iv_tb,
+                        iv_obj, iv_cell, 0, accel.max_walk, accel.walk_scale[w])
         h = SHADOW_STEP / math.sqrt(rd[0] ** 2 + rd[1] ** 2 + rd[2] ** 2)  # world length
         lastc[:] = -(1 << 62)
         for q in range(n):

@@ -1,5 +1,5 @@
 """Front-to-back walk of an object's leaf hierarchy (nodes of 128^3, leaves of 8^3) with integer
-cell indices."""
+cell indices, or of one of its grids of coarser cells (accel.py's levels)."""
 from __future__ import annotations
 
 import math
@@ -49,22 +49,24 @@ def dda_axis(o, d, t, size, lo, hi):
 
 @njit(**_hot)
 def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, node_cells,
-                cell_skip, obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap):
-    """Hierarchical DDA (nodes of 128^3, then leaves of 8^3, integer cell indices) in q-space
-    (q = index + 0.5) over the ray's [tn, tf]; appends the non-empty, non-transparent leaf
-    intervals front to back."""
+                cell_skip, obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap, scale):
+    """Hierarchical DDA (nodes of 128^3, then leaves of 8^3, integer cell indices; both ``scale``
+    times larger for a grid of coarse cells) in q-space (q = index + 0.5) over the ray's [tn, tf];
+    appends the non-empty, non-transparent cell intervals front to back, tagged ``obj``."""
     if ndims[0] == 0:
         return n
+    node = NODE * scale
+    leaf = LEAF * scale
     qx, qy, qz = ox + 0.5, oy + 0.5, oz + 0.5
-    t0, t1 = slab(qx, qy, qz, dx, dy, dz, nmin[0] * NODE, nmin[1] * NODE, nmin[2] * NODE,
-                  (nmin[0] + ndims[0]) * NODE, (nmin[1] + ndims[1]) * NODE,
-                  (nmin[2] + ndims[2]) * NODE, tn, tf)
+    t0, t1 = slab(qx, qy, qz, dx, dy, dz, nmin[0] * node, nmin[1] * node, nmin[2] * node,
+                  (nmin[0] + ndims[0]) * node, (nmin[1] + ndims[1]) * node,
+                  (nmin[2] + ndims[2]) * node, tn, tf)
     if not t0 < t1:
         return n
     t = t0
-    cx, sx, mx, ex = dda_axis(qx, dx, t, NODE, nmin[0], nmin[0] + ndims[0])
-    cy, sy, my, ey = dda_axis(qy, dy, t, NODE, nmin[1], nmin[1] + ndims[1])
-    cz, sz, mz, ez = dda_axis(qz, dz, t, NODE, nmin[2], nmin[2] + ndims[2])
+    cx, sx, mx, ex = dda_axis(qx, dx, t, node, nmin[0], nmin[0] + ndims[0])
+    cy, sy, my, ey = dda_axis(qy, dy, t, node, nmin[1], nmin[1] + ndims[1])
+    cz, sz, mz, ez = dda_axis(qz, dz, t, node, nmin[2], nmin[2] + ndims[2])
     while True:
         tn = min(mx, my, mz, t1)
         if tn > t:
@@ -72,9 +74,9 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
             if nid >= 0:
                 # leaf-level DDA inside this node over [t, tn]
                 bx, by, bz = cx * NL, cy * NL, cz * NL
-                lx, lsx, lmx, lex = dda_axis(qx, dx, t, LEAF, bx, bx + NL)
-                ly, lsy, lmy, ley = dda_axis(qy, dy, t, LEAF, by, by + NL)
-                lz, lsz, lmz, lez = dda_axis(qz, dz, t, LEAF, bz, bz + NL)
+                lx, lsx, lmx, lex = dda_axis(qx, dx, t, leaf, bx, bx + NL)
+                ly, lsy, lmy, ley = dda_axis(qy, dy, t, leaf, by, by + NL)
+                lz, lsz, lmz, lez = dda_axis(qz, dz, t, leaf, bz, bz + NL)
                 u = t
                 while True:
                     un = min(lmx, lmy, lmz, tn)

@@ -1,6 +1,9 @@
 """Acceleration data built once per scene sync (numpy): the VDB leaf hierarchy as a two-level
 sparse grid per object.
 
+The Gaussians (build_gaussians) and their per-leaf lists (add_halo_lists) are built apart: the
+screen-tile path needs no lists, so a device adds them only for the frames that walk the leaves.
+
 Index space is OpenVDB's (voxel centres at integers). Work coordinates are q = index + 0.5, so
 leaf cell c = floor(q / 8) spans index [8c - 0.5, 8c + 7.5] (exactly the VDB leaf with origin 8c)
 and node n = floor(q / 128) holds 16^3 leaf cells. Per object: a dense table over the bounding
@@ -10,6 +13,8 @@ ascending Gaussian id. All objects are packed into flat arrays with global ids.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from ..jit import njit
@@ -18,10 +23,22 @@ LEAF = 8
 NODE_LEAVES = 16
 NODE = LEAF * NODE_LEAVES
 MAX_NODE_TABLE = 1 << 26  # dense node table entries per object (sparse-enough for any VDB we read)
-# Halo-list entries (Gaussian x leaf cell) per object: each costs ~40 B while the lists are built, so
-# this bounds the sync at ~1 GB. Gaussians hundreds of leaves wide (a root tile, a world scaled far
-# beyond its voxels) would otherwise list billions of cells and exhaust memory.
-MAX_HALO_ENTRIES = 25_000_000
+# Peak bytes per halo-list entry (Gaussian x cell) while add_halo_lists builds them, a cell per
+# entry at worst (measured with tracemalloc: ids, cell coordinates, sort keys and order, the face
+# lists, per cell its coordinates and list starts), and per node its cell table; the lists are
+# checked against the available memory before they are built, never against a fixed count.
+HALO_BYTES = 320
+NODE_BYTES = 3 * 4 * NODE_LEAVES ** 3  # a node's cell table, its copy when packed, a mask
+TABLE_BYTES = 16  # per entry of a dense node table and its temporaries
+# Levels of the Gaussians' lists: a Gaussian is listed in the cells of the first level (cells of
+# LEVEL_CELLS^level leaves per axis) where its support box spans at most LEVEL_SPAN cells per axis,
+# so it has at most LEVEL_SPAN^3 entries whatever its size (a per-leaf halo grows with
+# support^3: a Low Gaussian met 125 leaves, an active tile's thousands). Each level is a grid of
+# its own that rays walk; the cells' coordinates and the Gaussians' boxes are in their level's
+# cells.
+LEVEL_CELLS = 4
+LEVEL_SPAN = 3
+MAX_LEVEL = 12  # cells of 8 * 4^12 voxels: past any index range a VDB holds
 
 
 def gaussian_arrays(gs):
@@ -68,6 +85,16 @@ class Accel:
 
     def __init__(self, n_obj):
         self.n_obj = n_obj
+        self.clear()
+
+    def clear(self, walk_obj=None, walk_scale=None):
+        """No cells: the hierarchy before add(), over one walk grid per object (its leaves) or the
+        grids given: walk_obj[w] the object of grid w, walk_scale[w] its cell size in leaves."""
+        self.walk_obj = np.arange(self.n_obj, dtype=np.int32) if walk_obj is None else \
+            np.asarray(walk_obj, np.int32)
+        self.walk_scale = np.ones(self.n_obj, np.int64) if walk_scale is None else \
+            np.asarray(walk_scale, np.int64)
+        n_obj = self.walk_obj.shape[0]
         self.node_min = np.zeros((n_obj, 3), np.int64)
         self.node_dims = np.zeros((n_obj, 3), np.int64)   # 0 dims = empty object
         self.node_off = np.zeros(n_obj, np.int64)
@@ -78,15 +105,15 @@ class Accel:
         self.table_size = 0
 
     def add(self, k, cell_xyz):
-        """Register object k's cells (C,3) int64; returns the global id of its first cell."""
+        """Register walk grid k's cells (C,3) int64; returns the global id of its first cell."""
         first = self.n_cells
         if cell_xyz.shape[0] == 0:
             return first
         nmin, ndims, table, ncells = _cells_to_nodes(cell_xyz)
         self.node_min[k], self.node_dims[k] = nmin, ndims
         self.node_off[k] = self.table_size
-        table = np.where(table >= 0, table + self.n_nodes, -1).astype(np.int32)
-        ncells = np.where(ncells >= 0, ncells + first, -1).astype(np.int32)
+        table[table >= 0] += self.n_nodes  # in place: node tables are the sparse lists' bulk
+        ncells[ncells >= 0] += first
         self.tables.append(table)
         self.ncells_list.append(ncells)
         self.cell_xyz_list.append(cell_xyz)
@@ -107,77 +134,64 @@ class Accel:
         return self
 
 
-def build_gauss_accel(objects, support_k):
-    """Gaussians of all objects + the halo-listed leaf hierarchy."""
+def _kept_arrays(gs):
+    """gaussian_arrays without the Gaussians the renderer never draws (a zero or non-finite
+    sigma, centre or amplitude)."""
+    mu, sig, v, a = gaussian_arrays(gs) if gs is not None else gaussian_arrays_empty()
+    keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
+    return mu[keep], sig[keep], v[keep], a[keep]
+
+
+def gaussian_bounds(gs, support_k=None):
+    """(lo, hi) of the drawn Gaussians' centres (index coords), or None when there are none;
+    with support_k, also (lo, hi) of their support_k-sigma supports."""
+    mu, sig = _kept_arrays(gs)[:2]
+    if not mu.shape[0]:
+        return None
+    if support_k is None:
+        return mu.min(0), mu.max(0)
+    reach = support_k * np.asarray(sig, np.float64)
+    return (mu.min(0), mu.max(0)), ((mu - reach).min(0), (mu + reach).max(0))
+
+
+def build_gaussians(objects, support_k):
+    """The Gaussians of all objects, packed (ids object by object), each with the leaf-cell box of
+    its k-sigma support and a bounding sphere; the leaf hierarchy and its lists stay empty until
+    add_halo_lists (only the leaf walk, paper mode and surface normals read them)."""
     n = len(objects)
     acc = Accel(n)
-    mus, invs, vals, amps, gobj, clos, chis = [], [], [], [], [], [], []
-    starts, items, faces = [np.zeros(1, np.int64)], [], []
-    g_off = 0
+    acc.finish()
+    mus, invs, vals, amps, gobj, clos, chis, levs = [], [], [], [], [], [], [], []
     acc.g_first = np.zeros(n + 1, np.int64)
     for k, ob in enumerate(objects):
-        mu, sig, v, a = gaussian_arrays(ob.gaussians) if ob.gaussians is not None else \
-            gaussian_arrays_empty()
-        keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
-        mu, sig, v, a = mu[keep], sig[keep], v[keep], a[keep]
+        mu, sig, v, a = _kept_arrays(ob.gaussians)
         m = mu.shape[0]
-        acc.g_first[k] = g_off
-        if m:
-            r = support_k * sig
-            clo = np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF)
-            chi = np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF)
-            ext = chi - clo + 1
-            cnt = ext[:, 0] * ext[:, 1] * ext[:, 2]
-            total = int(cnt.sum())
-            if total > MAX_HALO_ENTRIES:
-                big = int(np.argmax(cnt))
-                raise MemoryError(
-                    f"object {k}: the Gaussians' {support_k:g}-sigma supports cover {total:,} leaf cells "
-                    f"(limit {MAX_HALO_ENTRIES:,}); the largest has sigma {sig[big].max():.4g} voxels and "
-                    f"covers {int(cnt[big]):,} cells alone. Use a finer LOD or fewer, smaller Gaussians.")
-            gid = np.repeat(np.arange(m, dtype=np.int64), cnt)
-            first = np.repeat(np.cumsum(cnt) - cnt, cnt)
-            rr = np.arange(gid.size, dtype=np.int64) - first
-            eyz = ext[gid, 1] * ext[gid, 2]
-            cx = clo[gid, 0] + rr // eyz
-            cy = clo[gid, 1] + (rr % eyz) // ext[gid, 2]
-            cz = clo[gid, 2] + rr % ext[gid, 2]
-            cmin = np.array([cx.min(), cy.min(), cz.min()])
-            cdim = np.array([cx.max(), cy.max(), cz.max()]) - cmin + 1
-            key = ((cx - cmin[0]) * cdim[1] + (cy - cmin[1])) * cdim[2] + (cz - cmin[2])
-            order = np.argsort(key, kind="stable")  # keeps ascending gid within a cell
-            key, gid = key[order], gid[order]
-            ukey, ufirst, ucount = np.unique(key, return_index=True, return_counts=True)
-            cxyz = np.stack([ukey // (cdim[1] * cdim[2]) + cmin[0],
-                             (ukey // cdim[2]) % cdim[1] + cmin[1],
-                             ukey % cdim[2] + cmin[2]], axis=1).astype(np.int64)
-            acc.add(k, cxyz)
-            clos.append(clo)
-            chis.append(chi)
-            starts.append(starts[-1][-1] + np.cumsum(ucount))
-            items.append((gid + g_off).astype(np.int32))
-            faces.append(_face_lists(np.repeat(np.arange(ukey.size), ucount), cx[order], cy[order],
-                                     cz[order], gid, clo, chi, ukey.size, g_off))
+        acc.g_first[k + 1] = acc.g_first[k] + m
+        r = support_k * sig
+        lev, clo, chi = _levels(np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF),
+                                np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF),
+                                0 if ob.is_level_set and ob.surface else MAX_LEVEL)
+        levs.append(lev)
+        clos.append(clo)
+        chis.append(chi)
         mus.append(mu)
         invs.append(1.0 / sig)
         vals.append(v)
         amps.append(a)
         gobj.append(np.full(m, k, np.int32))
-        g_off += m
-    acc.g_first[n] = g_off
-    acc.finish()
-    acc.cell_start = np.concatenate(starts).astype(np.int64)
-    acc.cell_items = np.concatenate(items) if items else np.zeros(0, np.int32)
-    acc.face_items = np.concatenate([f[1] for f in faces]) if faces else np.zeros(0, np.int32)
-    acc.face_start = np.zeros(6 * acc.n_cells + 1, np.int64)
-    if faces:  # cells are numbered object by object, so the per-object counts line up
-        np.cumsum(np.concatenate([f[0] for f in faces]), out=acc.face_start[1:])
+    acc.cell_start = np.zeros(1, np.int64)
+    acc.cell_items = np.zeros(0, np.int32)
+    acc.face_start = np.zeros(1, np.int64)
+    acc.face_items = np.zeros(0, np.int32)
+    acc.has_lists = False
     acc.g_mu = np.ascontiguousarray(np.concatenate(mus)) if mus else np.zeros((0, 3))
     acc.g_inv = np.ascontiguousarray(np.concatenate(invs)) if invs else np.zeros((0, 3))
     acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
     acc.g_amp = np.concatenate(amps) if amps else np.zeros(0)
     acc.g_obj = np.concatenate(gobj) if gobj else np.zeros(0, np.int32)
-    # each Gaussian's range of leaf cells (inclusive): the kernels test it once per ray
+    # each Gaussian's level and range of that level's cells (inclusive): the kernels test it once
+    # per ray
+    acc.g_lev = np.concatenate(levs) if levs else np.zeros(0, np.int64)
     acc.g_clo = np.concatenate(clos) if clos else np.zeros((0, 3), np.int64)
     acc.g_chi = np.concatenate(chis) if chis else np.zeros((0, 3), np.int64)
     # bounding spheres for the kernels' cheap rejection: float32 centres relative to a reference
@@ -195,6 +209,167 @@ def build_gauss_accel(objects, support_k):
     # paper's volume factor 1/det(Sigma) (index units)
     acc.g_volfac = np.prod(acc.g_inv, axis=1) ** 2 if acc.g_inv.size else np.zeros(0)
     return acc
+
+
+def _levels(clo, chi, max_level):
+    """Each Gaussian's level (the first whose cells, LEVEL_CELLS^level leaves wide, its leaf box
+    [clo, chi] spans at most LEVEL_SPAN of per axis; at most max_level) and its box in those cells."""
+    lev = np.zeros(clo.shape[0], np.int64)
+    lo, hi = clo.copy(), chi.copy()
+    for level in range(1, max_level + 1):
+        big = (hi - lo).max(axis=1, initial=0) >= LEVEL_SPAN
+        if not big.any():
+            break
+        lev[big] = level
+        lo[big] = np.floor_divide(clo[big], LEVEL_CELLS ** level)
+        hi[big] = np.floor_divide(chi[big], LEVEL_CELLS ** level)
+    return lev, lo, hi
+
+
+def halo_entries(acc):
+    """The (Gaussian, cell) pairs the halo lists would hold: each support's box volume in the cells
+    of its level."""
+    ext = acc.g_chi - acc.g_clo + 1
+    return int(np.prod(ext, axis=1, dtype=np.int64).sum()) if ext.shape[0] else 0
+
+
+def halo_nodes(acc):
+    """(nodes, dense node-table entries) the lists will use: the distinct nodes (NODE_LEAVES^3 cells
+    of a level) the supports' boxes meet, and per walk grid the box of its nodes. A node's cell
+    table costs 16 kB, so sparse supports need them counted."""
+    m = acc.g_clo.shape[0]
+    if m == 0:
+        return 0, 0
+    grid = np.repeat(np.arange(acc.n_obj), np.diff(acc.g_first)) * (MAX_LEVEL + 1) + acc.g_lev
+    boxes = _unique_rows(np.column_stack([grid, np.floor_divide(acc.g_clo, NODE_LEAVES),
+                                          np.floor_divide(acc.g_chi, NODE_LEAVES)]))
+    grid, nlo, nhi = boxes[:, 0], boxes[:, 1:4], boxes[:, 4:7]
+    # a box spans at most LEVEL_SPAN < NODE_LEAVES cells, so at most two nodes per axis: the
+    # corners' nodes are all of them (boxes left wider at MAX_LEVEL are counted whole)
+    corners = np.stack([np.stack([(nlo, nhi)[(c >> a) & 1][:, a] for a in range(3)], 1)
+                        for c in range(8)]).reshape(-1, 3)
+    keys = _unique_rows(np.column_stack([np.tile(grid, 8), corners]))
+    wide = np.prod(nhi - nlo + 1, axis=1) > 8
+    nodes = keys.shape[0] + int(np.prod(nhi[wide] - nlo[wide] + 1, axis=1).sum())
+    table = 0
+    for gk in np.unique(keys[:, 0]):
+        k = keys[keys[:, 0] == gk, 1:]
+        table += int(np.prod(k.max(0) - k.min(0) + 1))
+    return nodes, table
+
+
+def _unique_rows(rows):
+    """np.unique(rows, axis=0) for int64 rows, through one int64 key per row where the rows'
+    ranges allow it (sorting void rows is ~10x slower)."""
+    lo = rows.min(0)
+    span = rows.max(0) - lo + 1
+    if float(np.prod(span.astype(np.float64))) >= 2.0 ** 62:
+        return np.unique(rows, axis=0)
+    key = np.zeros(rows.shape[0], np.int64)
+    for a in range(rows.shape[1]):
+        key = key * span[a] + (rows[:, a] - lo[a])
+    key = np.unique(key)
+    out = np.empty((key.size, rows.shape[1]), np.int64)
+    for a in range(rows.shape[1] - 1, -1, -1):
+        out[:, a] = key % span[a] + lo[a]
+        key //= span[a]
+    return out
+
+
+def halo_bytes(entries, nodes=0, table=0):
+    """Peak bytes add_halo_lists takes at most for that many entries, nodes and node-table entries
+    (see HALO_BYTES)."""
+    return int(entries) * HALO_BYTES + int(nodes) * NODE_BYTES + int(table) * TABLE_BYTES
+
+
+def available_bytes():
+    """Memory the system can give now (Linux MemAvailable, else free pages), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_halo_memory(acc, available=None):
+    """Raise MemoryError (one line, with advice that helps) when the halo lists cannot fit in the
+    memory available (``available`` bytes; default: the system's now)."""
+    entries = halo_entries(acc)
+    need = halo_bytes(entries, *halo_nodes(acc))
+    avail = available_bytes() if available is None else available
+    if avail is None or need <= avail:
+        return
+    raise MemoryError(
+        f"the per-leaf Gaussian lists of this scene need about {need / 2**30:.1f} GiB "
+        f"({entries:,} Gaussian-leaf pairs; {avail / 2**30:.1f} GiB available): draw it in particles "
+        f"or field mode with screen tiles (no per-leaf lists), or with a coarser LOD (fewer pairs).")
+
+
+def add_halo_lists(acc, support_k):
+    """The leaf hierarchy and, per leaf cell, the Gaussians whose support box meets it (its own
+    and its halo) and those first met per entry face; checks the memory first."""
+    check_halo_memory(acc)
+    n = acc.n_obj
+    # walk grids: each object's leaves first (grid k = object k), then its coarser levels
+    g_ob = np.repeat(np.arange(n), np.diff(acc.g_first))
+    coarse = sorted(set(zip(g_ob[acc.g_lev > 0].tolist(), acc.g_lev[acc.g_lev > 0].tolist())))
+    grids = [(k, 0) for k in range(n)] + coarse
+    acc.clear([k for k, _ in grids], [LEVEL_CELLS ** lv for _, lv in grids])
+    starts, items, faces = [np.zeros(1, np.int64)], [], []
+    for w, (k, lv) in enumerate(grids):
+        sel = np.arange(acc.g_first[k], acc.g_first[k + 1])
+        sel = sel[acc.g_lev[sel] == lv]  # this grid's Gaussians, ascending ids
+        m = sel.size
+        if m == 0:
+            continue
+        clo, chi = acc.g_clo[sel], acc.g_chi[sel]
+        ext = chi - clo + 1
+        cnt = ext[:, 0] * ext[:, 1] * ext[:, 2]
+        gid = np.repeat(np.arange(m, dtype=np.int64), cnt)
+        first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+        rr = np.arange(gid.size, dtype=np.int64) - first
+        del first
+        eyz = ext[gid, 1] * ext[gid, 2]
+        cx = clo[gid, 0] + rr // eyz
+        cy = clo[gid, 1] + (rr % eyz) // ext[gid, 2]
+        cz = clo[gid, 2] + rr % ext[gid, 2]
+        del rr, eyz
+        cmin = np.array([cx.min(), cy.min(), cz.min()])
+        cdim = np.array([cx.max(), cy.max(), cz.max()]) - cmin + 1
+        key = ((cx - cmin[0]) * cdim[1] + (cy - cmin[1])) * cdim[2] + (cz - cmin[2])
+        order = np.argsort(key, kind="stable")  # keeps ascending gid within a cell
+        key, gid = key[order], gid[order]
+        ukey, ucount = np.unique(key, return_counts=True)
+        del key
+        cxyz = np.stack([ukey // (cdim[1] * cdim[2]) + cmin[0],
+                         (ukey // cdim[2]) % cdim[1] + cmin[1],
+                         ukey % cdim[2] + cmin[2]], axis=1).astype(np.int64)
+        acc.add(w, cxyz)
+        starts.append(starts[-1][-1] + np.cumsum(ucount))
+        items.append(sel[gid].astype(np.int32))
+        counts, fitems = _face_lists(np.repeat(np.arange(ukey.size), ucount), cx[order], cy[order],
+                                     cz[order], gid, clo, chi, ukey.size, 0)
+        faces.append((counts, sel[fitems].astype(np.int32)))
+    acc.finish()
+    acc.cell_start = np.concatenate(starts).astype(np.int64)
+    acc.cell_items = np.concatenate(items) if items else np.zeros(0, np.int32)
+    acc.face_items = np.concatenate([f[1] for f in faces]) if faces else np.zeros(0, np.int32)
+    acc.face_start = np.zeros(6 * acc.n_cells + 1, np.int64)
+    if faces:  # cells are numbered grid by grid, so the per-grid counts line up
+        np.cumsum(np.concatenate([f[0] for f in faces]), out=acc.face_start[1:])
+    acc.has_lists = True
+    return acc
+
+
+def build_gauss_accel(objects, support_k):
+    """Gaussians of all objects + the halo-listed leaf hierarchy."""
+    return add_halo_lists(build_gaussians(objects, support_k), support_k)
 
 
 @njit(cache=True, nogil=True)

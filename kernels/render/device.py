@@ -21,7 +21,7 @@ import numpy as np
 
 from ..cachedir import set_cache_root
 from . import packing
-from .accel import build_gauss_accel, build_voxel_accel
+from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds
 from .camera import Camera
 from .scene import Mode, RenderScene, same_geometry
 from .transfer import LUT_SIZE, TransferFunction
@@ -109,6 +109,7 @@ class CPUDevice(Device):
         self._sync_count = 0  # geometry version: part of the frame key
         self._frame = None  # the current frame's state (begin_frame)
         self.vacc = None
+        self._objects, self._support_k = (), 3.0  # the synced scene's (sync)
         self.stats = {}
 
     # -- sync -----------------------------------------------------------------------------
@@ -121,9 +122,15 @@ class CPUDevice(Device):
         objs = scene.objects
         self._frame = None
         self._sync_count += 1
-        self.gacc = build_gauss_accel(objs, scene.support_k)
+        # what a frame draws from is built on its first use (_gaussians, _halo_lists, _voxels): a
+        # reference frame needs only the voxel bricks, a screen-tile frame no per-leaf lists
+        self._objects, self._support_k = objs, float(scene.support_k)
+        self.gacc = self.vacc = None
         self._g_rec = None
-        self.vacc = build_voxel_accel(objs) if any(o.grid is not None for o in objs) else None
+        if scene.mode == "reference":  # what this mode draws from; the other mode's on demand
+            self._voxels()
+        else:
+            self._gaussians()
         # per-object world coordinate ranges (level-set colouring) and voxel sizes
         n = len(objs)
         self.w2i = np.zeros((n, 4, 4))
@@ -134,19 +141,16 @@ class CPUDevice(Device):
             m = o.matrix_world
             self.w2i[k] = np.linalg.inv(m)
             self.voxel_world[k] = float(np.prod(np.linalg.norm(m[:3, :3], axis=0))) ** (1.0 / 3.0)
-            g0, g1 = self.gacc.g_first[k], self.gacc.g_first[k + 1]
-            if g1 > g0:
-                lo, hi = self.gacc.g_mu[g0:g1].min(0), self.gacc.g_mu[g0:g1].max(0)
-            elif o.grid is not None:
-                lo = np.asarray(o.grid.bbox_min, np.float64)
-                hi = np.asarray(o.grid.bbox_max, np.float64)
+            bounds = (gaussian_bounds(o.gaussians, scene.support_k) if o.gaussians is not None
+                      else None)
+            if bounds is not None:
+                (lo, hi), self.index_box[k] = bounds  # centres; the supports' box
             else:
-                lo = hi = np.zeros(3)
-            if g1 > g0:  # the supports' box
-                reach = scene.support_k / self.gacc.g_inv[g0:g1]
-                self.index_box[k] = ((self.gacc.g_mu[g0:g1] - reach).min(0),
-                                     (self.gacc.g_mu[g0:g1] + reach).max(0))
-            else:
+                if o.grid is not None:
+                    lo = np.asarray(o.grid.bbox_min, np.float64)
+                    hi = np.asarray(o.grid.bbox_max, np.float64)
+                else:
+                    lo = hi = np.zeros(3)
                 self.index_box[k] = lo, hi
             corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                                 for z in (lo[2], hi[2])])
@@ -156,11 +160,30 @@ class CPUDevice(Device):
         self._key = key
         self.stats["seconds_sync"] = time.perf_counter() - t0
 
+    def _gaussians(self):
+        """The synced Gaussians (accel.build_gaussians), built on the first frame that draws them."""
+        if self.gacc is None:
+            self.gacc = build_gaussians(self._objects, self._support_k)
+        return self.gacc
+
+    def _halo_lists(self):
+        """The Gaussians with their per-leaf lists (the leaf walk, paper mode, surface normals)."""
+        acc = self._gaussians()
+        if not acc.has_lists:
+            add_halo_lists(acc, self._support_k)
+        return acc
+
+    def _voxels(self):
+        """The reference mode's voxel bricks, built on its first frame."""
+        if self.vacc is None and any(o.grid is not None for o in self._objects):
+            self.vacc = build_voxel_accel(self._objects)
+        return self.vacc
+
     # -- render ---------------------------------------------------------------------------
     def _prepare(self, scene, tf):
         """The frame's transfer functions and the packed per-object and transfer tables."""
         tfs, obj_tf = packing.transfer_functions(scene, tf, _resample)
-        ref = self.gacc.obj_ref if scene.mode != "reference" else np.zeros((max(1, len(scene.objects)), 3))
+        ref = self._gaussians().obj_ref if scene.mode != "reference" else np.zeros((max(1, len(scene.objects)), 3))
         objects = packing.pack_objects(scene, obj_tf, self.w2i, self.coord_range, self.voxel_world, ref)
         return tfs, objects, packing.pack_transfer(scene, tfs)
 
@@ -317,21 +340,24 @@ class CPUDevice(Device):
     def _build_frame(self, mode, scene, camera, prep):
         tfs, objects, transfer = prep
         obj_tf, obj_kind = objects.tf, objects.kind
+        tiles, t_lb = packing.NO_TILES, None
         if mode == Mode.REFERENCE:
-            acc = self.vacc
+            acc = self._voxels()
             if acc is None:
                 raise ValueError("reference mode needs the source grids (RenderObject.grid)")
             gauss = packing.empty_gaussians()
         else:
-            acc = self.gacc
+            acc = self._gaussians()
             g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, objects.ls)
             if self._g_rec is None or self._g_rec.shape[0] != acc.g_mu.shape[0]:
                 self._g_rec = packing.test_records(acc)
             gauss = packing.pack_gaussians(acc, g_w, g_col, self._g_rec)
+            *tiles, t_lb = self._screen_tiles(mode, scene, camera, gauss.w)
+            if t_lb is not None:
+                gauss.rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
+            if t_lb is None or (obj_kind == 2).any() or (objects.lit == packing.LIT_SHADOWS).any():
+                acc = self._halo_lists()  # the leaf walk, surface normals, shadow rays
         cell_skip = self._cell_skip(mode, acc, gauss.w, tfs, obj_tf, obj_kind)
-        *tiles, t_lb = self._screen_tiles(mode, scene, camera, gauss.w)
-        if t_lb is not None:
-            gauss.rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
         accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=mode == Mode.REFERENCE)
         if (objects.lit == packing.LIT_SHADOWS).any():
             objects = self._shadow_grids(mode, scene, tfs, objects, gauss, accel, transfer)
@@ -427,7 +453,7 @@ class CPUDevice(Device):
                 o_value = np.empty((b - a, nc))
                 self._k.render_rows(int(frame.mode), frame.cam, r0 + a, r0 + b, c0, c1,
                                     frame.gauss, frame.objects, frame.accel, frame.transfer,
-                                    packing.Output(o_rgba, o_depth, o_value, segs[a:b]))
+                                    packing.Output(o_rgba, o_depth, o_value, segs[a:b]), threads)
                 rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
                 a = b
                 if progress is not None:

@@ -26,12 +26,14 @@ Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi
 # towards each light at each grid point, light fastest; _cpu_lit).
 Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau")
 LIT, LIT_SHADOWS = 1, 2
-# Acceleration: the leaf hierarchy (per-object node grids, node -> cell tables), the cells'
-# Gaussian lists (and per entry face), this frame's empty-space skips, voxel bricks (reference
-# mode), the longest leaf walk, and this frame's screen-tile lists (starts, ids, pixel masks).
+# Acceleration: the leaf hierarchy (node grids, node -> cell tables: per object its leaves, then
+# the grids of coarser cells that hold the larger Gaussians), the cells' Gaussian lists (and per
+# entry face), this frame's empty-space skips, voxel bricks (reference mode), the longest walk,
+# this frame's screen-tile lists (starts, ids, pixel masks), and per walk grid its object and
+# cell size in leaves.
 Accel = namedtuple("Accel", "node_min node_dims node_off node_table node_cells cell_skip cell_start "
                             "cell_items face_start face_items cell_xyz bricks max_walk t_start "
-                            "t_items t_mask")
+                            "t_items t_mask walk_obj walk_scale")
 # Transfer functions (rows: the scene's, then each object's own), lights (lights.pack) and the
 # scalar settings (pack_settings).
 Transfer = namedtuple("Transfer", "lut par lights settings")
@@ -158,10 +160,10 @@ def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False) -> Accel:
     else:
         cell_start, cell_items = acc.cell_start, acc.cell_items
         face_start, face_items = acc.face_start, acc.face_items
-        if acc.g_mu.shape[0] == 0:
+        if cell_items.size == 0:  # no Gaussians, or no lists (the screen tiles need none)
             cell_items = face_items = np.zeros(1, np.int32)
         bricks = np.zeros((1, 10, 10, 10), np.float32)
         cell_xyz = acc.cell_xyz if acc.cell_xyz.size else np.zeros((1, 3), np.int64)
     return Accel(acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
                  cell_skip, cell_start, cell_items, face_start, face_items, cell_xyz, bricks,
-                 acc.max_walk, *tiles)
+                 acc.max_walk, *tiles, acc.walk_obj, acc.walk_scale)

@@ -555,14 +555,19 @@ def test_short_span_far_in_the_tails(m, h):
         assert got >= 0.0 and rel_err(got, want) <= 1e-8, (u0, u1, got, want)
 
 
-def test_huge_gaussian_refused_with_clear_error_not_exhausted_memory():
-    """A Gaussian thousands of leaves wide (a root tile, a world scaled far past its voxels) must stop
-    the sync with a message, never allocate billions of halo-list entries."""
+def test_huge_gaussian_is_listed_at_its_level_not_per_leaf():
+    """A Gaussian thousands of leaves wide (a root tile, a world scaled far past its voxels) is
+    listed in a few cells of a coarse level, never in billions of leaf cells: the leaf walk draws
+    it as the screen tiles do, in moments."""
     import time
 
     big = gaussian_set([[0.0, 0.0, 0.0], [4.0, 4.0, 4.0]], [[5000.0, 5000.0, 5000.0], [1.0, 1.0, 1.0]])
     scene = RenderScene([RenderObject(big, np.eye(4))], mode="particles")
+    cam = Camera.frame_box([-6.0] * 3, [10.0] * 3, 8, 8)
+    tf = TransferFunction.from_colormap("grayscale", 0.0, 1.0)
     t0 = time.perf_counter()
-    with pytest.raises(MemoryError, match="sigma 5000 voxels"):
-        CPUDevice().sync(scene)
-    assert time.perf_counter() - t0 < 5.0
+    dev = CPUDevice(screen_tiles=False)
+    walk = dev.render(scene, cam, tf)["Combined"]
+    assert time.perf_counter() - t0 < 5.0 and dev.gacc.cell_items.size <= 27 + 8
+    tiles = CPUDevice().render(scene, cam, tf)["Combined"]
+    assert tiles[..., 3].max() > 0 and np.abs(walk - tiles).max() < 1e-6

@@ -1,0 +1,199 @@
+"""Scaling benchmark: one volume resampled by integer factors (a resolution series made here, in a
+temporary folder that is removed at exit), and per step the seconds and peak memory of reading it,
+converting it per LOD (with and without the field error) and rendering it per mode, then the
+scaling exponent of each (the slope of log seconds over log active voxels).
+
+    python benchmarks/bench_scale.py [--source FILE.vdb] [--factors 1,2,3] [--lods low,medium]
+                                     [--modes particles,reference] [--size 256] [--quick]
+
+--quick: the 2x file only. Each measurement runs in a process of its own, so its peak memory
+(ru_maxrss, which includes reading the file the step starts from) is its own; the series is
+written with the bundled openvdb (trilinear upsampling, slab by slab, so making it needs memory
+for a few slabs only). A read is timed the second time in its process (the kernels loaded).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
+
+
+def _openvdb():
+    import bpy
+
+    bpy.utils.expose_bundled_modules()
+    import openvdb
+    return openvdb
+
+
+def resample(src, dst, factor, grid_name=None):
+    """Write ``src``'s first float grid upsampled by ``factor`` (trilinear, voxel size / factor) to
+    ``dst``; values at the background stay inactive. Returns the active voxel count."""
+    ov = _openvdb()
+    grids = ov.readAll(src)[0]
+    g = next(x for x in grids if (grid_name is None or x.name == grid_name)
+             and isinstance(x, ov.FloatGrid))
+    lo, hi = (np.array(c) for c in g.evalActiveVoxelBoundingBox())
+    dims = hi - lo + 2  # one voxel beyond for the interpolation's upper neighbour
+    dense = np.full(tuple(dims), g.background, np.float32)
+    g.copyToArray(dense, ijk=tuple(int(c) for c in lo))
+    out = ov.FloatGrid()
+    out.background = g.background
+    out.name = g.name
+    out.gridClass = g.gridClass
+    out.transform = ov.createLinearTransform(voxelSize=float(g.transform.voxelSize()[0]) / factor)
+    f = int(factor)
+    u = np.arange(f) / f  # the output voxels' fractions between two source voxels
+    n = dims - 1
+    for x0 in range(0, n[0]):  # one source slab at a time: x0 .. x0 + 1
+        a, b = dense[x0], dense[x0 + 1]
+        slab = a[None] * (1 - u)[:, None, None] + b[None] * u[:, None, None]  # (f, ny+1, nz+1)
+        for ax in (1, 2):
+            s0 = np.take(slab, np.arange(n[ax]), axis=ax)
+            s1 = np.take(slab, np.arange(1, n[ax] + 1), axis=ax)
+            slab = _lerp(s0, s1, u, ax)
+        out.copyFromArray(np.ascontiguousarray(slab, np.float32),
+                          ijk=(int(lo[0] + x0) * f, int(lo[1]) * f, int(lo[2]) * f),
+                          tolerance=0.0)
+    ov.write(dst, grids=[out])
+    return int(out.activeVoxelCount())
+
+
+def _lerp(s0, s1, u, ax):
+    """Between neighbours s0, s1 along axis ax: u.size samples each (the axis grows that much)."""
+    a, b = np.expand_dims(s0, ax + 1), np.expand_dims(s1, ax + 1)
+    w = np.expand_dims(u, [k for k in range(4) if k != ax + 1])
+    shape = list(s0.shape)
+    shape[ax] *= u.size
+    return (a * (1 - w) + b * w).reshape(shape)
+
+
+# -- one measurement per process ----------------------------------------------------------------
+def step(kind, path, lod=None, mode=None, size=256, error=True):
+    """Run one measurement here; returns its figures with this process's peak memory."""
+    from kernels import pipeline
+    from kernels.vdb import read_vdb
+
+    out = {"step": kind, "lod": lod, "mode": mode, "error": error if kind == "convert" else None}
+    for _ in range(2 if kind == "read" else 1):  # a read: the second, with the kernels loaded
+        t = time.perf_counter()
+        grid = next(g for g in read_vdb(path).grids if g.active_voxels)
+        out["seconds_read"] = time.perf_counter() - t
+    out["active_voxels"] = int(grid.active_voxels)
+    if kind == "convert":
+        pipeline._warm_up(grid, [lod], "field", True, error)  # kernels loaded apart
+        t = time.perf_counter()
+        cl = pipeline.convert_lod(grid, lod, compute_error=error)
+        out["seconds"] = time.perf_counter() - t
+        out["gaussians"] = int(cl.gset.count)
+    elif kind == "render":
+        from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+
+        gs = pipeline.convert_lod(grid, lod, compute_error=False).gset if mode != "reference" else None
+        obj = RenderObject(gs, np.asarray(grid.index_to_world, np.float64),
+                           grid=grid if mode == "reference" else None)
+        m = np.asarray(grid.index_to_world, np.float64)
+        lo = (m @ np.r_[np.asarray(grid.bbox_min, float), 1.0])[:3]
+        hi = (m @ np.r_[np.asarray(grid.bbox_max, float) + 1, 1.0])[:3]
+        cam = Camera.frame_box(lo, hi, size, size, direction=(1.0, 0.7, -0.4))
+        tf = TransferFunction.from_colormap("viridis", 0.0, float(np.nanmax(grid.leaf_values)),
+                                            density=1.0)
+        dev = CPUDevice()
+        dev.load_kernels()
+        sc = RenderScene([obj], mode=mode)
+        t = time.perf_counter()
+        dev.render(sc, cam, tf)
+        out["seconds"] = time.perf_counter() - t  # the first frame: sync, set-up, drawing
+        out["seconds_sync"] = dev.stats["seconds_sync"]
+        out["gaussians"] = int(gs.count) if gs is not None else 0
+    else:
+        out["seconds"] = out["seconds_read"]
+    out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return out
+
+
+def measure(kind, path, **kw):
+    cmd = [sys.executable, os.path.abspath(__file__), "--step", json.dumps(dict(kind=kind, path=path, **kw))]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode:
+        return {"step": kind, **kw, "failed": (p.stderr.strip().splitlines() or ["?"])[-1]}
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def exponent(rows):
+    """Slope of log seconds over log active voxels (None with fewer than two sizes)."""
+    pts = [(r["active_voxels"], r["seconds"]) for r in rows if "seconds" in r and r["seconds"] > 0]
+    if len({v for v, _ in pts}) < 2:
+        return None
+    x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--source", default=None, help="a .vdb fog volume (default: the bundled sample)")
+    ap.add_argument("--factors", default="1,2,3")
+    ap.add_argument("--lods", default="low,medium")
+    ap.add_argument("--modes", default="particles,reference")
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--quick", action="store_true", help="the 2x file only")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--step", help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.step:
+        print(json.dumps(step(**json.loads(a.step))))
+        return 0
+    src = a.source or SAMPLE
+    factors = [2] if a.quick else [int(f) for f in a.factors.split(",")]
+    lods = a.lods.split(",")
+    modes = a.modes.split(",")
+    tmp = tempfile.mkdtemp(prefix="gaussvdb_scale_")
+    rows = []
+    try:
+        for f in factors:
+            path = os.path.join(tmp, f"x{f}.vdb")
+            t = time.perf_counter()
+            if f == 1:
+                shutil.copy(src, path)
+            else:
+                resample(src, path, f)
+            print(f"x{f}: made in {time.perf_counter() - t:.1f} s, {os.path.getsize(path) / 1e6:.1f} MB",
+                  file=sys.stderr)
+            todo = [("read", {})]
+            todo += [("convert", dict(lod=lod, error=e)) for lod in lods for e in (False, True)]
+            todo += [("render", dict(lod=lod, mode=mode, size=a.size)) for mode in modes
+                     for lod in (lods if mode != "reference" else [None])]
+            for kind, kw in todo:
+                r = measure(kind, path, **kw)
+                r["factor"] = f
+                rows.append(r)
+                print(json.dumps(r) if a.json else
+                      f"x{f} {kind:8} {str(kw.get('lod') or ''):7} {str(kw.get('mode') or ''):10} "
+                      f"{'err' if kw.get('error') else '   '} "
+                      + (f"FAILED: {r['failed']}" if "failed" in r else
+                         f"{r['active_voxels'] / 1e6:8.2f} Mvox {r['seconds']:8.2f} s {r['peak_mb']:8.0f} MB"),
+                      flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    keys = sorted({(r["step"], r.get("lod"), r.get("mode"), r.get("error")) for r in rows}, key=str)
+    for k in keys:
+        e = exponent([r for r in rows if (r["step"], r.get("lod"), r.get("mode"), r.get("error")) == k])
+        if e is not None:
+            print(f"exponent {k[0]} {k[1] or ''} {k[2] or ''} {'err' if k[3] else ''}: {e:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
