@@ -38,7 +38,7 @@ def _erf_table(per=16, deg=8, umax=6.0):
     """Taylor coefficients of erf about the midpoint of each 1/per-wide cell of [0, umax), in the
     cell's local coordinate d in [-1/2, 1/2]: erf^(k)(m) = 2/sqrt(pi) (-1)^(k-1) H_{k-1}(m) e^{-m^2}
     (physicists' Hermite polynomials, by their recurrence). Degree 8 at 1/16: within 3.3e-16 of
-    libm's erf (tests/test_render_particles), about 4x faster, and erf(6) rounds to 1 in float64."""
+    libm's erf (tests/kernels/test_render_particles.py), about 4x faster, and erf(6) rounds to 1 in float64."""
     n = int(umax * per)
     tab = np.zeros((n, deg + 1))
     for i in range(n):

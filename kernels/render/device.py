@@ -24,7 +24,7 @@ from . import packing
 from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds
 from .camera import Camera
 from .scene import Mode, RenderScene, same_geometry
-from .transfer import LUT_SIZE, TransferFunction
+from .transfer import TransferFunction, range_alpha, resampled
 
 MAX_TILE_ENTRIES = 24_000_000  # screen-tile list entries per frame (id + pixel mask: 288 MB)
 
@@ -65,27 +65,6 @@ class Device(ABC):
         transparent and ``self.stats['cancelled']`` is True. ``stats``: seconds_sync,
         seconds_setup (this call's frame set-up, 0 when reused) and seconds_render (the whole
         call, set-up included) as floats, segments (float), cancelled (bool), threads (int)."""
-
-
-def _alpha_max_table(lut):
-    a = np.asarray(lut[:, 3], np.float64)
-    k = a.size
-    t = np.zeros((k, k))
-    for i in range(k):
-        t[i, i:] = np.maximum.accumulate(a[i:])
-    return t
-
-
-def _range_alpha(tf, lo, hi):
-    """Max alpha of tf over value ranges [lo, hi] (arrays). NaN bounds -> 0."""
-    k = tf.lut.shape[0]
-    xlo = np.nan_to_num(tf.normalize(lo), nan=1.0)
-    xhi = np.nan_to_num(tf.normalize(hi), nan=0.0)
-    i0 = np.clip(np.floor(xlo * (k - 1)).astype(np.int64), 0, k - 1)
-    i1 = np.clip(np.ceil(xhi * (k - 1)).astype(np.int64), 0, k - 1)
-    tab = _alpha_max_table(tf.lut)
-    out = tab[i0, np.maximum(i0, i1)]
-    return np.where(i1 >= i0, out, 0.0)
 
 
 class CPUDevice(Device):
@@ -182,7 +161,7 @@ class CPUDevice(Device):
     # -- render ---------------------------------------------------------------------------
     def _prepare(self, scene, tf):
         """The frame's transfer functions and the packed per-object and transfer tables."""
-        tfs, obj_tf = packing.transfer_functions(scene, tf, _resample)
+        tfs, obj_tf = packing.transfer_functions(scene, tf, resampled)
         ref = self._gaussians().obj_ref if scene.mode != "reference" else np.zeros((max(1, len(scene.objects)), 3))
         objects = packing.pack_objects(scene, obj_tf, self.w2i, self.coord_range, self.voxel_world, ref)
         return tfs, objects, packing.pack_transfer(scene, tfs)
@@ -234,7 +213,7 @@ class CPUDevice(Device):
                 if obj_kind[k]:
                     skip[sel] = t.density <= 0
                 else:
-                    skip[sel] = (_range_alpha(t, acc.brick_lo[sel], acc.brick_hi[sel]) <= 0) | (t.density <= 0)
+                    skip[sel] = (range_alpha(t, acc.brick_lo[sel], acc.brick_hi[sel]) <= 0) | (t.density <= 0)
             return skip
         items = acc.cell_items
         starts = acc.cell_start[:-1]
@@ -255,7 +234,7 @@ class CPUDevice(Device):
             elif obj_kind[k]:
                 skip[sel] = (t.density <= 0) | (hi[sel] <= 0)
             else:
-                skip[sel] = (_range_alpha(t, lo[sel], hi[sel]) <= 0) | (t.density <= 0)
+                skip[sel] = (range_alpha(t, lo[sel], hi[sel]) <= 0) | (t.density <= 0)
         return skip
 
     def _screen_tiles(self, mode, scene, camera, g_w):
@@ -476,15 +455,6 @@ class _Frame:
         self.mode, self.cam, self.width, self.height = mode, cam, width, height
         self.gauss, self.objects, self.accel, self.transfer = gauss, objects, accel, transfer
         self.key = None
-
-
-def _resample(t: TransferFunction) -> TransferFunction:
-    if t.lut.shape[0] == LUT_SIZE:
-        return t
-    x = np.linspace(0, 1, LUT_SIZE)
-    xp = np.linspace(0, 1, t.lut.shape[0])
-    lut = np.stack([np.interp(x, xp, t.lut[:, c]) for c in range(4)], axis=1)
-    return TransferFunction(lut, t.vmin, t.vmax, t.log_scale, t.density)
 
 
 _REGISTRY = {"CPU": CPUDevice}

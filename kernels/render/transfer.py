@@ -163,3 +163,36 @@ def voxel_stats(grid, chunk=1 << 14):
         lo = hi = 0.0
     return {"min": lo, "max": hi, "positive_min": pmin if np.isfinite(pmin) else None,
             "nonpositive": bad, "voxels": total}
+
+
+# -- tables the devices read ------------------------------------------------------------------------
+def alpha_max_table(lut):
+    """t[i, j] = the largest alpha of the LUT's rows i..j."""
+    a = np.asarray(lut[:, 3], np.float64)
+    k = a.size
+    t = np.zeros((k, k))
+    for i in range(k):
+        t[i, i:] = np.maximum.accumulate(a[i:])
+    return t
+
+
+def range_alpha(tf, lo, hi):
+    """Max alpha of tf over value ranges [lo, hi] (arrays). NaN bounds -> 0."""
+    k = tf.lut.shape[0]
+    xlo = np.nan_to_num(tf.normalize(lo), nan=1.0)
+    xhi = np.nan_to_num(tf.normalize(hi), nan=0.0)
+    i0 = np.clip(np.floor(xlo * (k - 1)).astype(np.int64), 0, k - 1)
+    i1 = np.clip(np.ceil(xhi * (k - 1)).astype(np.int64), 0, k - 1)
+    tab = alpha_max_table(tf.lut)
+    out = tab[i0, np.maximum(i0, i1)]
+    return np.where(i1 >= i0, out, 0.0)
+
+
+def resampled(t: TransferFunction) -> TransferFunction:
+    """t with a LUT of LUT_SIZE rows (the devices' table size)."""
+    if t.lut.shape[0] == LUT_SIZE:
+        return t
+    x = np.linspace(0, 1, LUT_SIZE)
+    xp = np.linspace(0, 1, t.lut.shape[0])
+    lut = np.stack([np.interp(x, xp, t.lut[:, c]) for c in range(4)], axis=1)
+    return TransferFunction(lut, t.vmin, t.vmax, t.log_scale, t.density)
