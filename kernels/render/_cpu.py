@@ -38,7 +38,7 @@ from ._cpu_math import (
     erf_span,
     line_integral,
 )
-from ._cpu_pieces import paper_piece, reference_piece
+from ._cpu_pieces import lut_rows, paper_piece, reference_piece  # noqa: F401  (lut_rows: for device.py)
 from ._cpu_surface import mixture_normal, shade_hit
 from ._cpu_tiles import TILE
 from ._cpu_walk import clip_interval, walk_object
