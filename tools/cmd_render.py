@@ -31,8 +31,9 @@ VIEW = (0.35, 1.0, -0.3)  # viewing direction: from the front, a little from the
 
 
 def parse(argv):
+    from kernels import mode_names
     from kernels.lod import PRESETS, WEIGHTS
-    from kernels.render import MODES, colormap_names
+    from kernels.render import colormap_names
 
     p = cli_errors.ArgumentParser(prog="gaussvdb render", description=__doc__.split("\n\n")[1])
     p.add_argument("file", help="a .vdb file, or a sequence: 'DIR/name_####.vdb'")
@@ -43,7 +44,7 @@ def parse(argv):
     p.add_argument("--vector-magnitude", action="store_true",
                    help="vec3 grids (velocity) count as their magnitude, as in the importer")
     p.add_argument("--lod", default="medium", choices=PRESETS, help="LOD preset")
-    p.add_argument("--mode", default="particles", choices=MODES)
+    p.add_argument("--mode", default=mode_names.DEFAULT, choices=mode_names.NAMES)
     p.add_argument("--colormap", default="viridis", type=str.lower, choices=colormap_names())
     p.add_argument("--size", default=(640, 480), type=cli_errors.size, help="WxH pixels (640x480)")
     p.add_argument("--out", default="render.png", help=".png or .exr (.jpg, .tif also work)")

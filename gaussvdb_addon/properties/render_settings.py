@@ -13,14 +13,10 @@ from bpy.props import (
     StringProperty,
 )
 
+from ...kernels import mode_names
 from .transfer_settings import TransferFunctionProps
 
-MODES = (
-    ("PARTICLES", "Particles", "Each Gaussian classified by its value; closed-form optical depth"),
-    ("FIELD", "Field", "Transfer function on the summed Gaussian field (post-classification DVR)"),
-    ("REFERENCE", "Reference", "Direct volume render of the source voxels: the ground truth"),
-    ("PAPER", "Paper", "The seed paper's closest-hit renderer, for comparison only"),
-)
+MODES = mode_names.enum_items()
 
 
 def _tag(self, context):
@@ -36,7 +32,7 @@ def _value_pass_changed(self, context):
 
 class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
     # the transfer function (colormap, ramp, range, log scale, density): transfer_settings
-    mode: EnumProperty(name="Mode", items=MODES, default="PARTICLES", update=_tag,
+    mode: EnumProperty(name="Mode", items=MODES, default=mode_names.DEFAULT.upper(), update=_tag,
                        description="How the Gaussians are turned into an image")
     early_termination: FloatProperty(name="Early Termination", default=1e-3, min=0.0, max=0.5,
                                      precision=4, subtype="FACTOR", update=_tag,

@@ -3,27 +3,14 @@ matrices), the background, and the render settings."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import IntEnum
 from typing import Any, Optional
 
 import numpy as np
 
+from ..mode_names import NAMES as MODES  # noqa: F401  (RenderScene.mode's names)
+from ..mode_names import Mode  # noqa: F401  (the kernels' mode ids: kernels.render.scene.Mode)
 from .transfer import TransferFunction
 
-
-class Mode(IntEnum):
-    """The render modes; the kernels receive them as ints (int(Mode.FIELD) == 1)."""
-    PARTICLES = 0  # closed-form Gaussian segments (_cpu_gauss)
-    FIELD = 1      # the summed Gaussian field, sampled (_cpu_gauss)
-    PAPER = 2      # the seed paper's closest hits (_cpu)
-    REFERENCE = 3  # trilinear voxel samples of the source grid (_cpu)
-
-    @classmethod
-    def of(cls, name: str) -> "Mode":
-        return cls[name.upper()]
-
-
-MODES = tuple(m.name.lower() for m in Mode)  # RenderScene.mode's names, in Mode's order
 SHADINGS = ("emission", "lit")  # RenderObject.shading
 
 

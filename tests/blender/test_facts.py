@@ -52,6 +52,11 @@ def test_enum_items_are_the_fact_modules(addon, bpy_module):
         assert props["colormap"].default == colormap_names.DEFAULT
     pick = bpy.ops.gaussvdb.colormap_pick.get_rna_type().properties["colormap"]
     assert _items(pick) == colormap_names.enum_items()
+    mode_names = _mod("kernels.mode_names")
+    assert _items(scene_props["mode"]) == mode_names.enum_items()
+    assert scene_props["mode"].default == mode_names.DEFAULT.upper()
+    assert {i[0].lower() for i in mode_names.enum_items()} == set(mode_names.NAMES)
+    assert _mod("kernels.render.scene").Mode is mode_names.Mode  # one home for the ids
 
 
 def test_shipped_presets_name_only_known_facts():

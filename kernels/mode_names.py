@@ -1,0 +1,33 @@
+"""The render modes by name: their ids (what the kernels receive), labels and descriptions, for
+the kernels, the render panel and the command line. Plain Python, outside kernels/render (whose
+__init__ loads numba), so the extension registers its enums without loading the kernels."""
+from enum import IntEnum
+
+
+class Mode(IntEnum):
+    """The render modes; the kernels receive them as ints (int(Mode.FIELD) == 1)."""
+    PARTICLES = 0  # closed-form Gaussian segments (render/_cpu_gauss)
+    FIELD = 1      # the summed Gaussian field, sampled (render/_cpu_gauss)
+    PAPER = 2      # the seed paper's closest hits (render/_cpu_pieces)
+    REFERENCE = 3  # trilinear voxel samples of the source grid (render/_cpu_pieces)
+
+    @classmethod
+    def of(cls, name: str) -> "Mode":
+        return cls[name.upper()]
+
+
+NAMES = tuple(m.name.lower() for m in Mode)  # RenderScene.mode and --mode, in Mode's order
+DEFAULT = "particles"
+LABELS = {"particles": "Particles", "field": "Field", "reference": "Reference", "paper": "Paper"}
+DESCRIPTIONS = {
+    "particles": "Each Gaussian classified by its value; closed-form optical depth",
+    "field": "Transfer function on the summed Gaussian field (post-classification DVR)",
+    "reference": "Direct volume render of the source voxels: the ground truth",
+    "paper": "The seed paper's closest-hit renderer, for comparison only",
+}
+MENU_ORDER = ("particles", "field", "reference", "paper")  # the Gaussian modes, then the others
+
+
+def enum_items() -> tuple:
+    """(IDENTIFIER, label, description) of every mode, for a Blender EnumProperty."""
+    return tuple((n.upper(), LABELS[n], DESCRIPTIONS[n]) for n in MENU_ORDER)
