@@ -13,7 +13,7 @@ def test_shading_reaches_the_render_scene(bpy_module, scene):
     import importlib
 
     bpy = bpy_module
-    ss = importlib.import_module("bl_ext.user_default.gaussvdb.gaussvdb_addon.scene_sync")
+    ss = importlib.import_module("bl_ext.user_default.gaussvdb.gaussvdb_addon.engine.scene_sync")
     ob = make_object(bpy, "Cloud", lattice(8, 4, 4))
     sync = ss.SceneSync(viewport=False)
     o = sync.sync(bpy.context.evaluated_depsgraph_get()).objects[0]
