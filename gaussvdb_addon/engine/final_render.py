@@ -15,11 +15,15 @@ import math
 import time
 import traceback
 
+import bpy
 import numpy as np
 
 from ...kernels.render import Camera
 
 TARGET_BAND_SECONDS = 0.15
+# Partial results shown in the Image Editor this often; headless renders (blender -b, the CLI)
+# show none, so they skip these full-frame copies (8 M floats at 1920x1080).
+PROGRESSIVE_SECONDS = 0.5
 LAST_STATS = {}  # figures of the last final render in this process (the CLI prints them)
 _DEVICE = {}  # one CPU device per process: numba kernels compile once, acceleration is reused
 LOAD_SECONDS = [0.0]  # loading the kernels when the device was made (once per process)
@@ -230,11 +234,12 @@ def _draw(engine, depsgraph, device, rscene, camera, tf, region, finish):
             if p is not None:
                 p.rect.foreach_set(buf.reshape(-1))
 
-    least, align = device.band_rows(rscene)  # e.g. whole screen-tile rows, two per thread
+    least, align = device.band_rows(rscene)  # whole screen-tile rows, eight per thread
     row = y0
     band = least
     cancelled = False
     last_flush = time.perf_counter()
+    progressive = not bpy.app.background
     while row < y1:
         if engine.test_break():
             cancelled = True
@@ -255,7 +260,7 @@ def _draw(engine, depsgraph, device, rscene, camera, tf, region, finish):
         row = r1
         engine.update_progress((row - y0) / h)
         now = time.perf_counter()
-        if row < y1 and now - last_flush > 0.5:
+        if progressive and row < y1 and now - last_flush > PROGRESSIVE_SECONDS:
             flush()
             engine.update_result(result)
             last_flush = now
