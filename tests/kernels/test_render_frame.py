@@ -12,7 +12,7 @@ from kernels.render.synthetic import gaussian_set, grid_from_dense
 MODES = ["particles", "field", "paper", "reference"]
 
 
-def blob_scene(mode):
+def blob_object(amplitude=8 / ((2 * np.pi) ** 1.5 * 1.2 ** 3)):
     """A 24^3 smooth blob as a grid (reference) and as Gaussians on every other voxel."""
     n = 24
     x = np.arange(n)
@@ -22,9 +22,12 @@ def blob_scene(mode):
     c = np.stack(np.meshgrid(x[::2] + 0.5, x[::2] + 0.5, x[::2] + 0.5, indexing="ij"), -1).reshape(-1, 3)
     v = vol[::2, ::2, ::2].reshape(-1)
     keep = v > 0
-    gs = gaussian_set(c[keep], 1.2, v[keep], 8 / ((2 * np.pi) ** 1.5 * 1.2 ** 3))
-    obj = RenderObject(gs, np.diag([0.1, 0.1, 0.1, 1.0]), grid=grid_from_dense(vol))
-    return RenderScene([obj], mode=mode, passes=("Depth", "Value"), threads=2)
+    gs = gaussian_set(c[keep], 1.2, v[keep], amplitude)
+    return RenderObject(gs, np.diag([0.1, 0.1, 0.1, 1.0]), grid=grid_from_dense(vol))
+
+
+def blob_scene(mode):
+    return RenderScene([blob_object()], mode=mode, passes=("Depth", "Value"), threads=2)
 
 
 TF = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=2.0)

@@ -6,24 +6,16 @@ import tracemalloc
 
 import numpy as np
 import pytest
+from test_render_frame import blob_object as render_frame_blob
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, accel
-from kernels.render.synthetic import gaussian_set, grid_from_dense
+from kernels.render.synthetic import gaussian_set
 
 TF = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=2.0)
 
 
 def blob_object():
-    n = 24
-    x = np.arange(n)
-    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
-    vol = np.exp(-((X - 12) ** 2 + (Y - 11) ** 2 + (Z - 12.5) ** 2) / (2 * 5.0 ** 2)).astype(np.float32)
-    vol[vol < 0.05] = 0
-    c = np.stack(np.meshgrid(x[::2] + 0.5, x[::2] + 0.5, x[::2] + 0.5, indexing="ij"), -1).reshape(-1, 3)
-    v = vol[::2, ::2, ::2].reshape(-1)
-    keep = v > 0
-    gs = gaussian_set(c[keep], 1.2, v[keep], 0.3)
-    return RenderObject(gs, np.diag([0.1, 0.1, 0.1, 1.0]), grid=grid_from_dense(vol))
+    return render_frame_blob(amplitude=0.3)
 
 
 def camera():
