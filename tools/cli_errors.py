@@ -95,6 +95,16 @@ def max_threads() -> int:
     return int(numba.config.NUMBA_NUM_THREADS)
 
 
+def on_off(text: str) -> bool:
+    """A switch: on/off, true/false, yes/no or 1/0."""
+    t = text.strip().lower()
+    if t in ("on", "true", "yes", "1"):
+        return True
+    if t in ("off", "false", "no", "0"):
+        return False
+    raise argparse.ArgumentTypeError(f"must be on or off, not {text!r}")
+
+
 def nonnegative(text: str) -> float:
     """A finite number >= 0 (a density)."""
     try:

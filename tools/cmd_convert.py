@@ -105,6 +105,9 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
         "level_set_band": bool(gs.params.get("level_set_band", False)),
         "nonfinite_voxels": cg.nonfinite_voxels,
     }
+    if lod == "merged":  # runs merged, and (field weights) the merges the field check undid
+        res.update(merged=int(gs.params.get("merged", 0)),
+                   merges_undone=int(gs.params.get("merges_undone", 0)))
     if lod == "adaptive":
         p = gs.params
         res.update(tolerance=p["tolerance"], max_error=p["max_error"] or None,
@@ -220,8 +223,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--no-error", action="store_true", help="skip the field error")
     ap.add_argument("--threads", type=cli_errors.threads, help="numba threads (0: all)")
     for k, v in DEFAULTS.items():
+        kind = (cli_errors.nonnegative if k in ("tolerance", "max_error") else
+                cli_errors.on_off if isinstance(v, bool) else type(v))
         ap.add_argument("--" + k.replace("_", "-"), default=None, help=f"threshold (default {v})",
-                        type=cli_errors.nonnegative if k in ("tolerance", "max_error") else type(v))
+                        type=kind)
     a = ap.parse_args(argv)
     if a.threads:
         import numba

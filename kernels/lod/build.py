@@ -2,10 +2,12 @@
 (per leaf), clustering.py (merge pass), weights.py (sigma/amplitude), levelset.py (band filter)."""
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from .. import lod_names
-from . import clustering, levelset, schemes
+from . import clustering, error, levelset, schemes
 from . import weights as W
 from .adaptive import build_adaptive
 from .gaussian_set import GaussianSet
@@ -19,6 +21,7 @@ DEFAULTS = dict(
     var_value=0.05,  # variance scheme: max value std, as a fraction of the value range
     merge_tol=clustering.DEFAULT_MERGE_TOL,  # merge pass: max value std / value range
     merge_base="high",  # the spatial scheme the merged preset starts from
+    merge_check=True,  # field weights: undo the merges the field cannot carry (clustering.py)
     band_width=levelset.DEFAULT_BAND_WIDTH,  # level sets: |phi| <= band_width x voxel size
     tolerance=lod_names.DEFAULT_TOLERANCE,  # adaptive: max field NRMSE over the active voxels
     max_error=0.0,  # adaptive: max |field - voxel| (value units); 0: no bound
@@ -132,7 +135,6 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
                               max_error=p["max_error"], scale=scale, band=params["level_set_band"],
                               params=params)
 
-    n_merged = 0
     if preset == "merged" or merge:  # the merge pass works on boxes; Gaussians after it
         box = dict(c2=np.empty((m_leaf, 3), np.int16), ext=np.empty((m_leaf, 3), np.int16),
                    nvox=np.empty(m_leaf, np.int32), val=np.empty(m_leaf, np.float32),
@@ -143,8 +145,61 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
         if nt:
             box = {k: np.concatenate([box[k], tbox[k]]) for k in box}
             group = np.concatenate([group, n_leaf + np.arange(nt, dtype=np.int64)])
-        group, box, n_merged = clustering.merge_blocks(group, origins, n_leaf, box, vr,
-                                                       p["merge_tol"])
+        boxes = _Boxes(grid, origins, n_leaf, nt, is_ls, paper, scale, weights, params)
+        g_m, b_m, params["merged"], centres = clustering.merge_blocks(group, origins, n_leaf, box,
+                                                                      vr, p["merge_tol"])
+        if params["merged"] and p["merge_check"] and not paper and not is_ls:
+            cells = clustering.merge_cells(group, origins, box, centres, scale, error.DEFAULT_K)
+            near = _leaves_in(grid, cells[1])  # where the merges can change the field
+            undo = clustering.field_checked_merge(
+                cells, boxes.cell_errors(group, box, near), boxes.cell_errors(g_m, b_m, near),
+                error.nrmse_denominator(False, vmin, vmax), p["merge_tol"], len(centres))
+            params["merges_undone"] = int(undo.sum())
+            if undo.any():
+                exclude = np.zeros(len(group), bool)
+                exclude[centres[undo]] = True
+                g_m, b_m, params["merged"], _ = clustering.merge_blocks(
+                    group, origins, n_leaf, box, vr, p["merge_tol"], exclude)
+        gs = boxes.gaussian_set(g_m, b_m)
+    else:  # leaves straight into the output, tiles after them
+        out = W.new_gaussians(m_leaf + nt)
+        K["fill"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, is_ls, paper, scale,
+                  out)
+        if nt:
+            W.boxes_to_gaussians(tbox["c2"], tbox["ext"], tbox["nvox"], tbox["val"], tbox["kind"],
+                                 0, is_ls, paper, scale, out, m_leaf)
+        gcount = np.concatenate([counts[nz], np.ones(nt, np.int64)]) if nt else counts[nz]
+        gs = _gaussian_set(grid, origins, gcount, out, n_leaf, scale, weights, params)
+    if refine and not is_ls and gs.count:
+
+        info = refine_amplitudes(grid, gs, refine)
+        params["refine"] = refine
+        params["refine_sse"] = info["sse"]
+    return gs
+
+
+def _gaussian_set(grid, origins, gcount, out, n_leaf, scale, weights, params):
+    gstart = np.zeros(len(origins) + 1, np.int64)
+    np.cumsum(gcount, out=gstart[1:])
+    offsets, codes, sig, amp, vox, vals = out
+    return GaussianSet(
+        group_origins=origins, group_start=gstart, offsets=offsets, sigmas=sig, values=vals,
+        amplitudes=amp, voxels=vox, grid_class=grid.grid_class, lod=params["preset"],
+        weights=weights, index_to_world=np.asarray(grid.index_to_world, np.float64),
+        background=float(grid.background), n_leaf_groups=n_leaf, size_codes=codes,
+        sigma_scale=scale, params=params)
+
+
+class _Boxes:
+    """The merge pass's boxes -> Gaussians, and their field error per leaf cell."""
+
+    def __init__(self, grid, origins, n_leaf, nt, is_ls, paper, scale, weights, params):
+        self.grid, self.origins, self.n_leaf, self.nt = grid, origins, n_leaf, nt
+        self.is_ls, self.paper, self.scale = is_ls, paper, scale
+        self.weights, self.params = weights, params
+
+    def gaussian_set(self, group, box):
+        origins, n_leaf = self.origins, self.n_leaf
         used = np.bincount(group, minlength=len(origins)) > 0
         if not used.all():  # a leaf whose blocks all went into neighbours' merged Gaussians
             remap = np.cumsum(used) - 1
@@ -154,29 +209,22 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
         gcount = np.bincount(group, minlength=len(origins))
         out = W.new_gaussians(len(group))
         W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["kind"],
-                             len(group) - nt, is_ls, paper, scale, out, 0)
-    else:  # leaves straight into the output, tiles after them
-        out = W.new_gaussians(m_leaf + nt)
-        K["fill"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, is_ls, paper, scale,
-                  out)
-        if nt:
-            W.boxes_to_gaussians(tbox["c2"], tbox["ext"], tbox["nvox"], tbox["val"], tbox["kind"],
-                                 0, is_ls, paper, scale, out, m_leaf)
-        gcount = np.concatenate([counts[nz], np.ones(nt, np.int64)]) if nt else counts[nz]
+                             len(group) - self.nt, self.is_ls, self.paper, self.scale, out, 0)
+        return _gaussian_set(self.grid, origins, gcount, out, n_leaf, self.scale, self.weights,
+                             self.params)
 
-    gstart = np.zeros(len(origins) + 1, np.int64)
-    np.cumsum(gcount, out=gstart[1:])
-    offsets, codes, sig, amp, vox, vals = out
-    params["merged"] = n_merged
-    gs = GaussianSet(
-        group_origins=origins, group_start=gstart, offsets=offsets, sigmas=sig, values=vals,
-        amplitudes=amp, voxels=vox, grid_class=grid.grid_class, lod=preset, weights=weights,
-        index_to_world=np.asarray(grid.index_to_world, np.float64),
-        background=float(grid.background), n_leaf_groups=n_leaf, size_codes=codes,
-        sigma_scale=scale, params=params)
-    if refine and not is_ls and gs.count:
+    def cell_errors(self, group, box, leaves):
+        return error.cell_errors(leaves, self.gaussian_set(group, box))
 
-        info = refine_amplitudes(grid, gs, refine)
-        params["refine"] = refine
-        params["refine_sse"] = info["sse"]
-    return gs
+
+def _leaves_in(grid, keys):
+    """A copy of grid with only the leaves whose cell keys (error.cell_keys) are in keys, and no
+    tiles."""
+    lo = np.asarray(grid.leaf_origins, np.int64).reshape(-1, 3)
+    sel = np.isin(error.cell_keys(lo >> 3), keys)
+    sub = copy.copy(grid)
+    sub.leaf_origins = np.asarray(grid.leaf_origins)[sel]
+    sub.leaf_masks = np.asarray(grid.leaf_masks)[sel]
+    sub.leaf_values = np.asarray(grid.leaf_values)[sel]
+    sub.tile_active = np.zeros(len(grid.tile_active), bool)
+    return sub

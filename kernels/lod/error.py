@@ -246,13 +246,18 @@ def _cells(grid, gset):
             np.concatenate(cw), is_ls)
 
 
+def cell_keys(cells):
+    """The sort keys of leaf cells given as index >> 3 (int64 (n, 3)), as _key computes them."""
+    return ((cells[:, 0] + _OFF) << 42) | ((cells[:, 1] + _OFF) << 21) | (cells[:, 2] + _OFF)
+
+
 def cell_table(grid, gset):
     """The evaluation cells, sorted by key: origins, masks, reference per voxel, weights (big tiles
     count (edge/8)^3), keys, and whether the grid is a level set. Depends on the grid and on the
     set's level-set band option only, so an adaptive build computes it once."""
     grid, _ = finite_grid(grid)  # the voxels build_lod kept: NaN/Inf ones are inactive there too
     corg, cmask, cref, cw, is_ls = _cells(grid, gset)
-    keys = ((corg[:, 0] >> 3) + _OFF << 42) | ((corg[:, 1] >> 3) + _OFF << 21) | ((corg[:, 2] >> 3) + _OFF)
+    keys = cell_keys(corg >> 3)
     srt = np.argsort(keys, kind="stable")
     return dict(corg=corg[srt], cmask=cmask[srt], cref=cref[srt], cw=cw[srt], keys=keys[srt],
                 is_ls=is_ls)
@@ -290,13 +295,23 @@ def nrmse_denominator(is_ls, vmin, vmax):
     return (vmax - vmin) or max(abs(vmin), abs(vmax)) or 1.0
 
 
+def _evaluate(grid, gset, k):
+    st = setup(grid, gset, k)
+    w = gset.values.astype(np.float64) * gset.amplitudes.astype(np.float64)
+    return st, _eval_cells(st["corg"], st["cmask"], st["cref"], st["cstart"], st["pg"], st["cent"],
+                           st["sig"], w, st["k"])
+
+
+def cell_errors(grid, gset, k=DEFAULT_K):
+    """Per evaluation cell, sorted by key: (keys, summed squared residual, active voxels)."""
+    st, (sse, _, npts, _, _) = _evaluate(grid, gset, k)
+    return st["keys"], sse, npts
+
+
 def field_error(grid, gset, k=DEFAULT_K) -> dict:
     t0 = time.perf_counter()
-    st = setup(grid, gset, k)
-    corg, cmask, cref, cw, is_ls = st["corg"], st["cmask"], st["cref"], st["cw"], st["is_ls"]
-    cstart, pg, cent, sig, kk = st["cstart"], st["pg"], st["cent"], st["sig"], st["k"]
-    w = gset.values.astype(np.float64) * gset.amplitudes.astype(np.float64)
-    sse, mx, npts, inter, union = _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, kk)
+    st, (sse, mx, npts, inter, union) = _evaluate(grid, gset, k)
+    cw, is_ls, kk = st["cw"], st["is_ls"], st["k"]
     n = float(np.sum(npts * cw))
     rmse = float(np.sqrt(np.sum(sse * cw) / n)) if n else 0.0
     vmin, vmax = gset.params.get("value_min"), gset.params.get("value_max")
@@ -305,7 +320,7 @@ def field_error(grid, gset, k=DEFAULT_K) -> dict:
     den = nrmse_denominator(is_ls, vmin, vmax)
     out = dict(rmse=rmse, nrmse=rmse / den, max_abs=float(mx.max()) if len(mx) else 0.0,
                nrmse_denominator=float(den), points=int(n), k_sigma=kk,
-               pairs=int(len(pg)), seconds=time.perf_counter() - t0)
+               pairs=int(len(st["pg"])), seconds=time.perf_counter() - t0)
     if is_ls:
         it, un = float(np.sum(inter * cw)), float(np.sum(union * cw))
         out.update(surface_iou=it / un if un else 1.0, surface_mismatch=(un - it) / n if n else 0.0,

@@ -172,12 +172,15 @@ def test_merge_across_leaf_borders():
     v = np.full((24, 24, 24), 0.5, np.float32)
     g = grid_from_dense(v)
     assert len(g.leaf_origins) == 27
-    gs = build_lod(g, "merged", "field")  # high: 2^3 blocks -> 6^3 super-cells, 4 per axis
+    # high: 2^3 blocks -> 6^3 super-cells, 4 per axis (the paper's merge: merge_check off)
+    gs = build_lod(g, "merged", "field", merge_check=False)
     assert gs.count == 64 and np.all(gs.voxels == 216)
+    # the check keeps none: the wide Gaussians blur the block's faces, every super-cell meets one
+    assert build_lod(g, "merged", "field").params["merges_undone"] == 64
     np.testing.assert_allclose(gs.sigmas, 3.6, rtol=1e-6)
     c = np.sort(np.unique(gs.centers()[:, 0]))
     np.testing.assert_array_equal(c, [2.5, 8.5, 14.5, 20.5])  # [6..11] straddles x = 8
-    lo = build_lod(g, "low", "field", merge=True)  # 27 dense leaves -> one 24^3 Gaussian
+    lo = build_lod(g, "low", "field", merge=True, merge_check=False)  # 27 leaves -> one 24^3
     assert lo.count == 1 and lo.voxels[0] == 27 * 512
     np.testing.assert_array_equal(lo.centers()[0], [11.5] * 3)
     # inhomogeneous: nothing merges
