@@ -9,6 +9,7 @@ scripts) and Redo run the same steps synchronously, with no event loop to listen
 """
 
 import os
+import time
 
 import bpy
 from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatProperty, StringProperty
@@ -131,6 +132,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                       for p in paths]
         self._done = []
         self._npaths = len(paths)
+        self._t0 = time.perf_counter()
         wm = context.window_manager
         wm.progress_begin(0, 1000)
         self._timer = wm.event_timer_add(0.01, window=context.window)
@@ -173,9 +175,12 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             if len(self._done) < self._npaths:
                 return {"RUNNING_MODAL"}
             self._stop_modal(context)
-            objs = importer.build_objects([cg for part in self._done for cg in part], None,
+            converted = [cg for part in self._done for cg in part]
+            t1 = time.perf_counter()
+            objs = importer.build_objects(converted, None,
                                           {k: v for k, v in self._options().items()
                                            if k in ("weights", "level_set_band", "vector_magnitude")})
+            t2 = time.perf_counter()
         except importer.ImportError_ as err:
             self._stop_modal(context)
             self.report({"ERROR"}, str(err))
@@ -186,7 +191,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             obj.select_set(True)
         if objs:
             context.view_layer.objects.active = objs[-1]
-        message = importer.status_message(objs, self._skipped)
+        timing = importer.import_timing(converted, t2 - self._t0, t2 - t1)
+        message = importer.status_message(objs, self._skipped, timing)
         self.report({"WARNING"} if "NaN/Inf" in message else {"INFO"}, message)
         return {"FINISHED"}
 
