@@ -1,10 +1,14 @@
 """Scaling benchmark: one volume resampled by integer factors (a resolution series made here, in a
 temporary folder that is removed at exit), and per step the seconds and peak memory of reading it,
-converting it per LOD (with and without the field error) and rendering it per mode, then the
-scaling exponent of each (the slope of log seconds over log active voxels).
+converting it per LOD (with and without the field error), rendering it per mode and, in the same
+run, Blender's Volume object with Cycles at 16 samples (benchmarks/cycles_ref.py; the same camera
+and transfer function as ours, from bench_report.setup_view; its seconds are the frame's after a
+warm-up that syncs the scene, reported as seconds_sync), then the scaling exponent of each (the
+slope of log seconds over log active voxels).
 
     python benchmarks/bench_scale.py [--source FILE.vdb] [--factors 1,2,3] [--lods low,medium]
                                      [--modes particles,reference] [--size 256] [--quick]
+                                     [--no-cycles]
 
 --quick: the 2x file only. Each measurement runs in a process of its own, so its peak memory
 (ru_maxrss, which includes reading the file the step starts from) is its own; the series is
@@ -27,7 +31,9 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
+CYCLES_SAMPLES = 16
 
 
 def _openvdb():
@@ -99,29 +105,47 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         out["seconds"] = time.perf_counter() - t
         out["gaussians"] = int(cl.gset.count)
     elif kind == "render":
-        from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+        from kernels.render import CPUDevice, RenderObject, RenderScene
 
         gs = pipeline.convert_lod(grid, lod, compute_error=False).gset if mode != "reference" else None
         obj = RenderObject(gs, np.asarray(grid.index_to_world, np.float64),
                            grid=grid if mode == "reference" else None)
-        m = np.asarray(grid.index_to_world, np.float64)
-        lo = (m @ np.r_[np.asarray(grid.bbox_min, float), 1.0])[:3]
-        hi = (m @ np.r_[np.asarray(grid.bbox_max, float) + 1, 1.0])[:3]
-        cam = Camera.frame_box(lo, hi, size, size, direction=(1.0, 0.7, -0.4))
-        tf = TransferFunction.from_colormap("viridis", 0.0, float(np.nanmax(grid.leaf_values)),
-                                            density=1.0)
+        view = _view(grid, size)
         dev = CPUDevice()
         dev.load_kernels()
         sc = RenderScene([obj], mode=mode)
         t = time.perf_counter()
-        dev.render(sc, cam, tf)
+        dev.render(sc, view["cam"], view["tf"])
         out["seconds"] = time.perf_counter() - t  # the first frame: sync, set-up, drawing
         out["seconds_sync"] = dev.stats["seconds_sync"]
         out["gaussians"] = int(gs.count) if gs is not None else 0
+    elif kind == "cycles":  # Blender's Volume object + Cycles, same camera and transfer function
+        from report_external import run_cycles
+
+        work = tempfile.mkdtemp(prefix="gaussvdb_scale_cycles_")
+        try:
+            info, _ = run_cycles(path, grid.name, _view(grid, size), argparse.Namespace(
+                width=size, height=size, samples=[CYCLES_SAMPLES], cycles_biased=False, threads=0),
+                work)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        out["seconds"] = info["rows"][0]["seconds_render"]  # the frame, the scene synced before
+        out["seconds_sync"] = info["seconds_warmup"]
+        out["samples"] = CYCLES_SAMPLES
+        out["peak_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        return out
     else:
         out["seconds"] = out["seconds_read"]
     out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
+
+
+def _view(grid, size):
+    """bench_report's camera and transfer function for this grid at size x size (optical depth 10
+    across the box's diagonal), so our frames and Cycles' see the same thing."""
+    from bench_report import setup_view
+
+    return setup_view(grid, argparse.Namespace(width=size, height=size, density=10.0))
 
 
 def measure(kind, path, **kw):
@@ -149,6 +173,7 @@ def main(argv=None):
     ap.add_argument("--modes", default="particles,reference")
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--quick", action="store_true", help="the 2x file only")
+    ap.add_argument("--no-cycles", action="store_true", help="leave out Cycles (16 samples)")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--step", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -175,6 +200,7 @@ def main(argv=None):
             todo += [("convert", dict(lod=lod, error=e)) for lod in lods for e in (False, True)]
             todo += [("render", dict(lod=lod, mode=mode, size=a.size)) for mode in modes
                      for lod in (lods if mode != "reference" else [None])]
+            todo += [] if a.no_cycles else [("cycles", dict(size=a.size))]
             for kind, kw in todo:
                 r = measure(kind, path, **kw)
                 r["factor"] = f
