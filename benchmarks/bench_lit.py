@@ -5,8 +5,9 @@ from one sun, on the bundled sample (or given .vdb files), and the ratios to Emi
                                    [--repeat 2] [--threads 0]
 
 Whole frames (the per-frame set-up, which builds the shadow grid, included), best of --repeat
-after a warm-up. Particles mode draws a frame with a lit volume as field (kernels/render/scene.py),
-so its Lit ratios are field-lit over particles-emission. Targets: Lit <= 1.5x, shadows <= 4x.
+after a warm-up. Particles mode shades each lit chord once (_cpu_gauss.lit_member) on gradients
+computed once per sync (_cpu_lit.lit_gradients: in the first frame, outside the best-of timing).
+Targets: Lit <= 1.5x, shadows <= 4x.
 """
 from __future__ import annotations
 

@@ -95,9 +95,31 @@ from .scene import Mode
 
 
 @njit(**_hot)
-def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_col, g_val, tau_max):
+def lit_member(H, h, g, gauss, objs, xfer, scr):
+    """A lit volume's chord in particles mode: its colour shaded once, at the chord's closest
+    approach to the centre (shade_sample), on the mixture's gradient there: the Gaussian's own
+    (analytic) plus its neighbours', taken at its centre (gauss.grad, per sync)."""
+    ob = gauss.obj[g]
+    ts = H[h, TS]
+    ro, rd = scr.ro, scr.rd
+    x, y, z = ro[ob, 0] + ts * rd[ob, 0], ro[ob, 1] + ts * rd[ob, 1], ro[ob, 2] + ts * rd[ob, 2]
+    ix, iy, iz = gauss.inv[g, 0], gauss.inv[g, 1], gauss.inv[g, 2]
+    ux, uy, uz = (x - gauss.mu[g, 0]) * ix, (y - gauss.mu[g, 1]) * iy, (z - gauss.mu[g, 2]) * iz
+    e = -gauss.grad[g, 3] * math.exp(-0.5 * (ux * ux + uy * uy + uz * uz))
+    samp = scr.samp
+    samp[1], samp[2], samp[3] = H[h, CR], H[h, CG], H[h, CB]
+    shade_sample(samp, ob, gauss.grad[g, 0] + e * ux * ix, gauss.grad[g, 1] + e * uy * iy,
+                 gauss.grad[g, 2] + e * uz * iz, x, y, z, scr.wr, ts, objs, xfer.lights,
+                 xfer.settings, xfer.par[objs.tf[ob]])
+    H[h, CR], H[h, CG], H[h, CB] = samp[1], samp[2], samp[3]
+
+
+@njit(**_hot)
+def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_col, g_val, tau_max,
+                    gauss, objs, xfer, scr):
     """Particles: consume the entries before horizon, and close the cluster when it ends before
-    it (see module doc). Returns 1 once the ray is opaque (early termination)."""
+    it (see module doc). Returns 1 once the ray is opaque (early termination). Lit volumes'
+    members are shaded as they enter (lit_member)."""
     q0, nq, nm = qs[QH], qs[NQ], qs[NM]
     a, last_t, rho, cend = fs[IA], fs[LAST], fs[RHO], fs[CEND]
     done = 0
@@ -134,6 +156,8 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
         H[h, CR] = g_col[g, 0]
         H[h, CG] = g_col[g, 1]
         H[h, CB] = g_col[g, 2]
+        if objs.lit[gauss.obj[g]] != 0:
+            lit_member(H, h, g, gauss, objs, xfer, scr)
         v = g_val[g]
         H[h, VAL] = v if v == v else 0.0
         H[h, VW] = 1.0 if v == v else 0.0
@@ -337,7 +361,8 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
 def sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
     if mode == Mode.PARTICLES:
         return sweep_particles(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
-                               hits.mem, hits.act, scr.cb, gauss.col, gauss.val, tau_max)
+                               hits.mem, hits.act, scr.cb, gauss.col, gauss.val, tau_max, gauss, objs,
+                               xfer, scr)
     return sweep_field(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
                        hits.act, gauss.rec, gauss.obj, scr.ro, scr.rd, objs.kind, objs.tf, objs.ls,
                        xfer.lut, xfer.par, scr.svals, scr.sact, scr.samp, scr.acc, scr.sprev, objs, xfer,

@@ -45,6 +45,21 @@ def shadow_tau(grid, tau, nl, li, x, y, z):
     return v
 
 
+@njit(**_hot, inline="always")
+def shine(c, sh):
+    """c ** sh, by repeated squaring for the usual whole shininess (up to 128), else pow."""
+    n = int(sh)
+    if n != sh or n < 0 or n > 128:
+        return c ** sh
+    r = 1.0
+    while n:
+        if n & 1:
+            r *= c
+        c *= c
+        n >>= 1
+    return r
+
+
 @njit(**_hot)
 def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, par):
     """Blinn-Phong on a lit volume sample of object ob (samp: sigma_t, rgb, value from
@@ -55,7 +70,8 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
     rng = par[1] - par[0]
     if not rng > 0.0:
         rng = 1.0
-    if not math.sqrt(gx * gx + gy * gy + gz * gz) > settings[SET_LIT_THRESHOLD] * rng:
+    thr = settings[SET_LIT_THRESHOLD] * rng
+    if not gx * gx + gy * gy + gz * gz > thr * thr:
         return
     M = objs.w2i[ob]
     nx = -(M[0, 0] * gx + M[1, 0] * gy + M[2, 0] * gz)
@@ -64,7 +80,8 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
     nn = math.sqrt(nx * nx + ny * ny + nz * nz)
     if not nn > 0.0:
         return
-    nx, ny, nz = nx / nn, ny / nn, nz / nn
+    inn = 1.0 / nn
+    nx, ny, nz = nx * inn, ny * inn, nz * inn
     dx, dy, dz = wr[3], wr[4], wr[5]
     px, py, pz = wr[0] + t * dx, wr[1] + t * dy, wr[2] + t * dz
     ka, kd, ks, sh = (settings[SET_SHADING], settings[SET_SHADING + 1], settings[SET_SHADING + 2],
@@ -85,7 +102,7 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
         hn = math.sqrt(hx * hx + hy * hy + hz * hz)
         spec = 0.0
         if hn > 0.0 and ks > 0.0:
-            spec = ks * (max(nx * hx + ny * hy + nz * hz, 0.0) / hn) ** sh
+            spec = ks * shine(max(nx * hx + ny * hy + nz * hz, 0.0) / hn, sh)
         r += er * (kd * ndl * cr + spec)
         g += eg * (kd * ndl * cg + spec)
         b += eb * (kd * ndl * cb + spec)
@@ -197,3 +214,61 @@ def shadow_grid(voxels, pts_ob, pts, i2w, gauss, wext, objs, accel, xfer, out):
             ok, lx, ly, lz, _, _, _, dist = light_at(lights, k, wx, wy, wz, 0.0, 0.0, 0.0)
             out[p, k] = ray_tau(voxels, wx, wy, wz, lx, ly, lz, dist, gauss, wext, objs, accel,
                                 xfer, iv_ta, iv_tb, iv_obj, iv_cell, ro, rd, lastc, samp) if ok else 0.0
+
+
+@parallel_njit(**_jit)
+def centre_gradients(cstart, pg, cg_start, cg_items, mu, inv, fw, k2, out):
+    """Particles mode's lit volumes: out[g] = (the gradient at g's centre of the field of the other
+    Gaussians of its object, g's own field weight). Cells c (those holding a centre): their pairs
+    pg[cstart[c]:cstart[c + 1]] (every Gaussian whose k-sigma box meets the cell) and the
+    Gaussians centred there, cg_items[cg_start[c]:cg_start[c + 1]]."""
+    for c in prange(cstart.shape[0] - 1):
+        for a in range(cg_start[c], cg_start[c + 1]):
+            g = cg_items[a]
+            x, y, z = mu[g, 0], mu[g, 1], mu[g, 2]
+            gx = gy = gz = 0.0
+            for b in range(cstart[c], cstart[c + 1]):
+                j = pg[b]
+                if j == g or fw[j] == 0.0:
+                    continue
+                ux = (x - mu[j, 0]) * inv[j, 0]
+                uy = (y - mu[j, 1]) * inv[j, 1]
+                uz = (z - mu[j, 2]) * inv[j, 2]
+                q = ux * ux + uy * uy + uz * uz
+                if q > k2:
+                    continue
+                e = -fw[j] * math.exp(-0.5 * q)
+                gx += e * ux * inv[j, 0]
+                gy += e * uy * inv[j, 1]
+                gz += e * uz * inv[j, 2]
+            out[g, 0], out[g, 1], out[g, 2], out[g, 3] = gx, gy, gz, fw[g]
+
+
+def lit_gradients(mu, inv, fw, first, k):
+    """(m, 4) Gaussians.grad for the Gaussians of every object (first: each object's first row):
+    centre_gradients over the leaf cells holding their centres, pairs as the field error lists
+    them (kernels.lod.error.pair_lists: each Gaussian in every cell its k-sigma box meets)."""
+    from ..lod.error import cell_keys, pair_lists
+
+    out = np.zeros((mu.shape[0], 4))
+    for ob in range(len(first) - 1):
+        s = slice(int(first[ob]), int(first[ob + 1]))
+        if s.stop == s.start:
+            continue
+        m = mu[s]
+        cells = np.floor((m + 0.5) / 8.0).astype(np.int64)  # a voxel's centre sits at its index
+        keys = cell_keys(cells)
+        ukeys, where = np.unique(keys, return_inverse=True)
+        corg = np.empty((len(ukeys), 3), np.int64)
+        corg[where] = cells * 8
+        sig = 1.0 / inv[s]
+        lists = pair_lists(dict(keys=ukeys, corg=corg), m, sig, k)
+        order = np.argsort(where, kind="stable")
+        cg_start = np.zeros(len(ukeys) + 1, np.int64)
+        np.cumsum(np.bincount(where, minlength=len(ukeys)), out=cg_start[1:])
+        part = np.zeros((s.stop - s.start, 4))
+        centre_gradients(lists["cstart"], lists["pg"], cg_start, order, np.ascontiguousarray(m),
+                         np.ascontiguousarray(inv[s]), np.ascontiguousarray(fw[s]), float(k) ** 2,
+                         part)
+        out[s] = part
+    return out

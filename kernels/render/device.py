@@ -85,6 +85,7 @@ class CPUDevice(Device):
         self._key = None
         self.gacc = None
         self._g_rec = None  # the per-ray test records (render)
+        self._grad = None  # lit particles' gradients (_lit_gradients)
         self._sync_count = 0  # geometry version: part of the frame key
         self._frame = None  # the current frame's state (begin_frame)
         self.vacc = None
@@ -105,7 +106,7 @@ class CPUDevice(Device):
         # reference frame needs only the voxel bricks, a screen-tile frame no per-leaf lists
         self._objects, self._support_k = objs, float(scene.support_k)
         self.gacc = self.vacc = None
-        self._g_rec = None
+        self._g_rec = self._grad = None
         if scene.mode == "reference":  # what this mode draws from; the other mode's on demand
             self._voxels()
         else:
@@ -144,6 +145,20 @@ class CPUDevice(Device):
         if self.gacc is None:
             self.gacc = build_gaussians(self._objects, self._support_k)
         return self.gacc
+
+    def _lit_gradients(self):
+        """Gaussians.grad for lit volumes in particles mode (_cpu_lit.lit_gradients), once per
+        sync: the field weights (value x amplitude) do not change with the transfer function."""
+        if self._grad is None:
+            from ._cpu_lit import lit_gradients
+
+            A = self._gaussians()
+            fw = np.nan_to_num(A.g_val) * A.g_amp
+            for k, o in enumerate(self._objects):
+                if o.is_level_set:  # only volumes are lit
+                    fw[A.g_first[k]:A.g_first[k + 1]] = 0.0
+            self._grad = lit_gradients(A.g_mu, A.g_inv, fw, A.g_first, self._support_k)
+        return self._grad
 
     def _halo_lists(self):
         """The Gaussians with their per-leaf lists (the leaf walk, paper mode, surface normals)."""
@@ -286,8 +301,8 @@ class CPUDevice(Device):
             self.sync(scene)
         mode = Mode.of(scene.mode)
         prep = self._prepare(scene, tf)
-        if mode == Mode.PARTICLES and ((prep[1].kind == 2).any() or (prep[1].lit != 0).any()):
-            # surfaces are found, and lit volumes shaded, by the field sampler: such a frame draws as field
+        if mode == Mode.PARTICLES and (prep[1].kind == 2).any():
+            # surfaces are found by the field sampler: such a frame draws as field
             mode = Mode.FIELD
         key = self._frame_key(mode, scene, camera, prep)
         if self._frame is not None and self._frame.key == key:
@@ -330,7 +345,9 @@ class CPUDevice(Device):
             g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, objects.ls)
             if self._g_rec is None or self._g_rec.shape[0] != acc.g_mu.shape[0]:
                 self._g_rec = packing.test_records(acc)
-            gauss = packing.pack_gaussians(acc, g_w, g_col, self._g_rec)
+            lit = mode == Mode.PARTICLES and (objects.lit != 0).any()
+            gauss = packing.pack_gaussians(acc, g_w, g_col, self._g_rec,
+                                           self._lit_gradients() if lit else None)
             *tiles, t_lb = self._screen_tiles(mode, scene, camera, gauss.w)
             if t_lb is not None:
                 gauss.rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian

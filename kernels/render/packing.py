@@ -16,8 +16,10 @@ from . import clip, lights
 
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
-# lists); sph: a float32 bounding sphere near obj_ref; clo/chi: the leaf-cell box of its support.
-Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi")
+# lists); sph: a float32 bounding sphere near obj_ref; clo/chi: the leaf-cell box of its support;
+# grad: lit volumes in particles mode, the gradient of the other Gaussians' field at its centre
+# and its own field weight (value x amplitude), one dummy row otherwise.
+Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi grad")
 # Per object: world -> index matrix, kind (0 volume, 1 level-set shell, 2 level-set surface),
 # its transfer function's row, level-set colouring (see pack_objects), sample step in voxels,
 # clip half-spaces (clip.pack), the float32 reference point of the bounding spheres, shading (0
@@ -120,23 +122,27 @@ def no_shadows(n):
     return np.zeros((max(n, 1), 8)), np.zeros(1)
 
 
+NO_GRAD = np.zeros((1, 4))  # Gaussians.grad where no lit volume is drawn in particles mode
+
+
 def empty_gaussians() -> Gaussians:
     """One dummy Gaussian of weight 0 (reference mode, or objects without Gaussians)."""
     z3 = np.zeros((1, 3))
     zc = np.zeros((1, 3), np.int64)
     return Gaussians(z3, z3, np.zeros(1), np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int32),
-                     np.zeros(1), np.zeros((1, 8)), np.zeros((1, 4), np.float32), zc, zc)
+                     np.zeros(1), np.zeros((1, 8)), np.zeros((1, 4), np.float32), zc, zc, NO_GRAD)
 
 
-def pack_gaussians(acc, w, col, rec) -> Gaussians:
+def pack_gaussians(acc, w, col, rec, grad=None) -> Gaussians:
     """The synced Gaussians with this frame's weights w and colours col; rec: the device's
-    (m, 8) test records, rewritten here (centre and 1/sigma kept from sync, column 6 = w)."""
+    (m, 8) test records, rewritten here (centre and 1/sigma kept from sync, column 6 = w); grad:
+    lit particles' (m, 4) gradients (see Gaussians), or None."""
     if acc.g_mu.shape[0] == 0:
         return empty_gaussians()
     rec[:, 6] = w
     sph = acc.g_sph if acc.g_sph.shape[0] else np.zeros((1, 4), np.float32)
     return Gaussians(acc.g_mu, acc.g_inv, w, col, acc.g_val, acc.g_obj, acc.g_volfac, rec, sph,
-                     acc.g_clo, acc.g_chi)
+                     acc.g_clo, acc.g_chi, NO_GRAD if grad is None else grad)
 
 
 def test_records(acc):

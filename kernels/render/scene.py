@@ -32,8 +32,9 @@ class RenderObject:
     (kernels.render.clip builds them from planes and boxes).
     ``shading``: 'emission' (emission-absorption) or 'lit' (a volume: the scene's lights shade
     each sample by Blinn-Phong on the field's gradient, RenderScene.shading and
-    lit_threshold; particles mode draws a frame with a lit volume as field; paper mode stays
-    emission). ``shadows``: lit samples see each light through the medium (single scattering).
+    lit_threshold; particles mode shades each chord once, at its closest approach to the
+    Gaussian's centre; paper mode stays emission). ``shadows``: lit samples see each light
+    through the medium (single scattering).
     """
     gaussians: Any = None
     matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
