@@ -29,6 +29,8 @@ class GaussianSet:
     size_codes: np.ndarray | None = None  # int32 (M, 3): sigma = sigma_scale * code (exact)
     sigma_scale: float = 0.6
     params: dict = field(default_factory=dict)
+    # a second grid of the same file on these Gaussians (second_grid.py): float32 (M,) or None
+    color_values: np.ndarray | None = None
 
     # ---- derived -------------------------------------------------------------------------
     @property

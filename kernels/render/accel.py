@@ -134,12 +134,17 @@ class Accel:
         return self
 
 
-def _kept_arrays(gs):
+def _kept_arrays(gs, colors=False):
     """gaussian_arrays without the Gaussians the renderer never draws (a zero or non-finite
-    sigma, centre or amplitude)."""
+    sigma, centre or amplitude); with colors, also their second-grid values (NaN without)."""
     mu, sig, v, a = gaussian_arrays(gs) if gs is not None else gaussian_arrays_empty()
     keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
-    return mu[keep], sig[keep], v[keep], a[keep]
+    out = mu[keep], sig[keep], v[keep], a[keep]
+    if not colors:
+        return out
+    cv = getattr(gs, "color_values", None)
+    cv = np.full(keep.shape[0], np.nan) if cv is None else np.asarray(cv, np.float64)[:keep.shape[0]]
+    return out + (cv[keep],)
 
 
 def gaussian_bounds(gs, support_k=None):
@@ -161,10 +166,10 @@ def build_gaussians(objects, support_k):
     n = len(objects)
     acc = Accel(n)
     acc.finish()
-    mus, invs, vals, amps, gobj, clos, chis, levs = [], [], [], [], [], [], [], []
+    mus, invs, vals, amps, gobj, clos, chis, levs, cvals = [], [], [], [], [], [], [], [], []
     acc.g_first = np.zeros(n + 1, np.int64)
     for k, ob in enumerate(objects):
-        mu, sig, v, a = _kept_arrays(ob.gaussians)
+        mu, sig, v, a, cv = _kept_arrays(ob.gaussians, colors=True)
         m = mu.shape[0]
         acc.g_first[k + 1] = acc.g_first[k] + m
         r = support_k * sig
@@ -177,6 +182,7 @@ def build_gaussians(objects, support_k):
         mus.append(mu)
         invs.append(1.0 / sig)
         vals.append(v)
+        cvals.append(cv)
         amps.append(a)
         gobj.append(np.full(m, k, np.int32))
     acc.cell_start = np.zeros(1, np.int64)
@@ -187,6 +193,7 @@ def build_gaussians(objects, support_k):
     acc.g_mu = np.ascontiguousarray(np.concatenate(mus)) if mus else np.zeros((0, 3))
     acc.g_inv = np.ascontiguousarray(np.concatenate(invs)) if invs else np.zeros((0, 3))
     acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
+    acc.g_cval = np.concatenate(cvals) if cvals else np.zeros(0)  # second grids' values (NaN: none)
     acc.g_amp = np.concatenate(amps) if amps else np.zeros(0)
     acc.g_obj = np.concatenate(gobj) if gobj else np.zeros(0, np.int32)
     # each Gaussian's level and range of that level's cells (inclusive): the kernels test it once
@@ -436,10 +443,15 @@ def _grid_leaves(grid):
 
 def build_voxel_accel(objects):
     """Reference-mode structure: one cell per VDB leaf with a 10^3 brick (apron of the
-    neighbours' voxels; voxels of missing leaves take the grid background)."""
+    neighbours' voxels; voxels of missing leaves take the grid background); objects with a
+    colour grid (RenderObject.color_grid) get its bricks on the same cells (cbricks; the other
+    objects' cells hold zeros there), else cbricks is None."""
+    from ..lod.second_grid import second_bricks
+
     n = len(objects)
     acc = Accel(n)
-    bricks = []
+    bricks, cbricks = [], []
+    any_color = any(ob.color_grid is not None and ob.grid is not None for ob in objects)
     for k, ob in enumerate(objects):
         if ob.grid is None:
             continue
@@ -470,7 +482,11 @@ def build_voxel_accel(objects):
                         val[src][:, sx, sy, sz]
         acc.add(k, cells)
         bricks.append(b)
+        if any_color:
+            cbricks.append(second_bricks(cells, ob.color_grid) if ob.color_grid is not None
+                           else np.zeros_like(b))
     acc.finish()
+    acc.cbricks = np.concatenate(cbricks) if cbricks else None
     acc.bricks = np.concatenate(bricks) if bricks else np.zeros((1, BRICK, BRICK, BRICK), np.float32)
     acc.brick_lo = np.nanmin(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
     acc.brick_hi = np.nanmax(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
