@@ -199,10 +199,10 @@ def convert_lod(grid, name, weights="field", level_set_band=True, compute_error=
 
 def add_color_values(cl, grid, cgrid, level_set_band=True):
     """The colour grid's value at each Gaussian of the ConvertedLOD ``cl`` (built from ``grid``)."""
-    from .lod.second_grid import second_values
+    from .lod.second_grid import attach
 
     t0 = time.perf_counter()
-    cl.gset.color_values = second_values(cl.gset, grid, cgrid, level_set_band)
+    attach(cl.gset, grid, cgrid, level_set_band)
     cl.seconds_color = time.perf_counter() - t0
 
 
@@ -331,7 +331,7 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             from .render.transfer import voxel_stats
 
             cg.color_grid = cgrid.name
-            cg.color_values = voxel_stats(cgrid)
+            cg.color_values = dict(voxel_stats(cgrid), background=float(cgrid.background or 0.0))
         out.append(cg)
     return out
 

@@ -276,8 +276,11 @@ def gaussian_set_from_object(obj, lod=None, depsgraph=None):
         lod = active_lod(orig, render=True)
     idx = lod_index(orig, lod)
     arrays = upgrade_arrays(read_attributes(obj, depsgraph), version)
-    return gaussian_set_from_arrays(arrays, idx, lod_names(orig), object_stats(orig), st.grid_class,
-                                    st.weights_rule(), stored_index_to_world(orig), fallback_name=str(lod))
+    gs = gaussian_set_from_arrays(arrays, idx, lod_names(orig), object_stats(orig), st.grid_class,
+                                  st.weights_rule(), stored_index_to_world(orig), fallback_name=str(lod))
+    if gs.color_values is not None:
+        gs.color_background = float((st.color_stats() or {}).get("background", 0.0))
+    return gs
 
 
 def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to_world,
@@ -338,5 +341,7 @@ def converted_gaussian_set(cg):
     arrays = point_arrays(cg)
     a = {k: arr for k, (_, arr, _) in arrays.items()}
     names = [cl.name for cl in cg.lods]
-    return gaussian_set_from_arrays(a, 0, names, lod_stats(cg, bytes_per_point(arrays)),
-                                    cg.grid_class, cg.lods[0].gset.weights, cg.index_to_world)
+    gs = gaussian_set_from_arrays(a, 0, names, lod_stats(cg, bytes_per_point(arrays)),
+                                  cg.grid_class, cg.lods[0].gset.weights, cg.index_to_world)
+    gs.color_background = cg.lods[0].gset.color_background
+    return gs

@@ -31,6 +31,7 @@ class GaussianSet:
     params: dict = field(default_factory=dict)
     # a second grid of the same file on these Gaussians (second_grid.py): float32 (M,) or None
     color_values: np.ndarray | None = None
+    color_background: float = 0.0  # that grid's background: its value away from the Gaussians
 
     # ---- derived -------------------------------------------------------------------------
     @property

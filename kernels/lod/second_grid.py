@@ -148,6 +148,14 @@ def second_values(gs, grid, second, level_set_band=True):
     return out
 
 
+def attach(gs, grid, second, level_set_band=True):
+    """Carry the second grid on ``gs``: its values (second_values) and its background (what the
+    field's colour mixture is away from the Gaussians). Returns gs."""
+    gs.color_values = second_values(gs, grid, second, level_set_band)
+    gs.color_background = float(second.background or 0.0)
+    return gs
+
+
 def _region_mean(look, lo, ext):
     """Mean of the second grid over the box [lo, lo + ext): its leaves inside, its tiles' overlap,
     the background for the rest (a tile's box may hold up to 4096^3 voxels)."""

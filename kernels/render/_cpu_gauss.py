@@ -198,7 +198,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
     mixture's analytic gradient, sum_g -V_g (x - mu_g) / sigma_g^2 (sgrad per object; wr the
     world ray; _cpu_lit). Volumes coloured by a second grid (objs.ctf): its mixture, with the
     weights g_cw on the same Gaussians, is carried beside the field (CV) and summed per object
-    (cvals) for the colour map."""
+    (cvals); plus that grid's background (objs.cbg), it is the colour map's value."""
     q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
     obj_lit = objs.lit
     obj_ctf = objs.ctf
@@ -332,7 +332,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             z = ro[ob, 2] + ti * rd[ob, 2]
             sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             if gcol:
-                recolor(ob, cvals[ob], obj_ctf, tf_lut, tf_par, samp)
+                recolor(ob, cvals[ob] + objs.cbg[ob], obj_ctf, tf_lut, tf_par, samp)
             if obj_lit[ob] != 0 and samp[0] > 0.0:
                 shade_sample(samp, ob, sgrad[ob, 0], sgrad[ob, 1], sgrad[ob, 2], x, y, z, wr, ti,
                              objs, xfer.lights, xfer.settings, tf_par[obj_tf[ob]])

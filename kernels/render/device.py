@@ -206,15 +206,18 @@ class CPUDevice(Device):
         return w, col
 
     def _color_weights(self, obj_ctf):
-        """The colour grids' field weights (second value x amplitude) of the volumes coloured by
-        one, zero elsewhere; None when no object is."""
+        """The colour grids' field weights ((second value - its background) x amplitude: the
+        colour mixture is that grid's background where no Gaussian is, as the reference mode's
+        voxels are) of the volumes coloured by one, zero elsewhere; None when no object is."""
         if obj_ctf is None or not (obj_ctf >= 0).any():
             return None
         A = self.gacc
         cw = np.zeros(A.g_val.shape[0])
         for k in np.flatnonzero(obj_ctf >= 0):
             s = slice(A.g_first[k], A.g_first[k + 1])
-            cw[s] = np.nan_to_num(A.g_cval[s]) * A.g_amp[s]
+            bg = float(getattr(self._objects[k].gaussians, "color_background", 0.0) or 0.0)
+            cv = A.g_cval[s]
+            cw[s] = np.where(np.isnan(cv), 0.0, cv - bg) * A.g_amp[s]
         return cw
 
     def _cell_skip(self, mode, acc, w, tfs, obj_tf, obj_kind):
@@ -296,7 +299,7 @@ class CPUDevice(Device):
         camera, settings and the transfer-function tables."""
         _, objects, transfer = prep
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
-                  objects.clip, transfer.lights, transfer.settings, objects.ctf)
+                  objects.clip, transfer.lights, transfer.settings, objects.ctf, objects.cbg)
         return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes()) + tuple(
             np.ascontiguousarray(a).tobytes() for a in tables)
 

@@ -17,8 +17,8 @@ from . import clip, lights
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
 # lists); sph: a float32 bounding sphere near obj_ref; clo/chi: the leaf-cell box of its support;
-# cw: the field weight of the colour grid's mixture (colour value x amplitude; objects coloured by
-# a second grid, Objects.ctf; one dummy row when no object is).
+# cw: the field weight of the colour grid's mixture ((colour value - its background) x amplitude;
+# objects coloured by a second grid, Objects.ctf; one dummy row when no object is).
 Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi cw")
 # Per object: world -> index matrix, kind (0 volume, 1 level-set shell, 2 level-set surface),
 # its transfer function's row, level-set colouring (see pack_objects), sample step in voxels,
@@ -26,8 +26,9 @@ Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi
 # emission, LIT, LIT_SHADOWS: volumes only, see pack_objects) and the lit volumes' shadow grids
 # (sh_grid rows [origin xyz, spacing, dims xyz, offset into sh_tau]; sh_tau: the optical depth
 # towards each light at each grid point, light fastest; _cpu_lit) and, for a volume coloured by a
-# second grid, its colour map's transfer-function row (-1: coloured by its own values).
-Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf")
+# second grid, its colour map's transfer-function row (-1: coloured by its own values) and that
+# grid's background (its value where no Gaussian is: the field adds it to the colour mixture).
+Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf cbg")
 LIT, LIT_SHADOWS = 1, 2
 # Acceleration: the leaf hierarchy (node grids, node -> cell tables: per object its leaves, then
 # the grids of coarser cells that hold the larger Gaussians), the cells' Gaussian lists (and per
@@ -131,7 +132,12 @@ def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=
                     if o.shading == "lit" and not o.is_level_set and scene.mode != "paper" else 0
                     for o in objs], np.int32)
     ctf = np.full(max(n, 1), -1, np.int32) if obj_ctf is None else np.asarray(obj_ctf, np.int32)
-    return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n), ctf)
+    cbg = np.zeros(max(n, 1))
+    for k, o in enumerate(objs):
+        if ctf[k] >= 0:
+            cbg[k] = float(getattr(o.gaussians, "color_background", 0.0) or 0.0)
+    return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n), ctf,
+                   cbg)
 
 
 def no_shadows(n):
