@@ -179,6 +179,20 @@ def _region_mean(look, lo, ext):
     return s / total
 
 
+def object_bricks(objects, cell_obj, cell_xyz):
+    """The colour grids' bricks (n_cells, 10, 10, 10) on the reference mode's cells (cell_obj:
+    each cell's object) of the RenderObjects with a color_grid, zeros on the others' cells; None
+    when no object has one."""
+    if not any(o.color_grid is not None for o in objects) or not len(cell_obj):
+        return None
+    out = np.zeros((len(cell_obj), 10, 10, 10), np.float32)
+    for k, o in enumerate(objects):
+        sel = np.flatnonzero(cell_obj == k)
+        if o.color_grid is not None and sel.size:
+            out[sel] = second_bricks(np.asarray(cell_xyz)[sel], o.color_grid)
+    return out
+
+
 def second_bricks(cell_xyz, second):
     """float32 (n, 10, 10, 10): the second grid's voxels around each leaf cell (reference mode)."""
     cells = np.ascontiguousarray(np.asarray(cell_xyz, np.int64).reshape(-1, 3))

@@ -139,12 +139,10 @@ def _kept_arrays(gs, colors=False):
     sigma, centre or amplitude); with colors, also their second-grid values (NaN without)."""
     mu, sig, v, a = gaussian_arrays(gs) if gs is not None else gaussian_arrays_empty()
     keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
-    out = mu[keep], sig[keep], v[keep], a[keep]
     if not colors:
-        return out
-    cv = getattr(gs, "color_values", None)
-    cv = np.full(keep.shape[0], np.nan) if cv is None else np.asarray(cv, np.float64)[:keep.shape[0]]
-    return out + (cv[keep],)
+        return mu[keep], sig[keep], v[keep], a[keep]
+    cv = np.asarray(getattr(gs, "color_values", None) if gs is not None else None, np.float64)
+    return mu[keep], sig[keep], v[keep], a[keep], cv[:keep.shape[0]][keep] if cv.ndim else v[keep] * np.nan
 
 
 def gaussian_bounds(gs, support_k=None):
@@ -443,15 +441,13 @@ def _grid_leaves(grid):
 
 def build_voxel_accel(objects):
     """Reference-mode structure: one cell per VDB leaf with a 10^3 brick (apron of the
-    neighbours' voxels; voxels of missing leaves take the grid background); objects with a
-    colour grid (RenderObject.color_grid) get its bricks on the same cells (cbricks; the other
-    objects' cells hold zeros there), else cbricks is None."""
-    from ..lod.second_grid import second_bricks
+    neighbours' voxels; voxels of missing leaves take the grid background), and the colour
+    grids' bricks on the same cells (second_grid.object_bricks)."""
+    from ..lod.second_grid import object_bricks
 
     n = len(objects)
     acc = Accel(n)
-    bricks, cbricks = [], []
-    any_color = any(ob.color_grid is not None and ob.grid is not None for ob in objects)
+    bricks = []
     for k, ob in enumerate(objects):
         if ob.grid is None:
             continue
@@ -482,16 +478,13 @@ def build_voxel_accel(objects):
                         val[src][:, sx, sy, sz]
         acc.add(k, cells)
         bricks.append(b)
-        if any_color:
-            cbricks.append(second_bricks(cells, ob.color_grid) if ob.color_grid is not None
-                           else np.zeros_like(b))
     acc.finish()
-    acc.cbricks = np.concatenate(cbricks) if cbricks else None
     acc.bricks = np.concatenate(bricks) if bricks else np.zeros((1, BRICK, BRICK, BRICK), np.float32)
     acc.brick_lo = np.nanmin(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
     acc.brick_hi = np.nanmax(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
     acc.cell_obj = np.concatenate([np.full(int(c), k, np.int32) for k, c in enumerate(_cell_counts(acc))]) \
         if acc.n_cells else np.zeros(0, np.int32)
+    acc.cbricks = object_bricks(objects, acc.cell_obj, acc.cell_xyz)
     return acc
 
 
