@@ -256,7 +256,9 @@ class SceneSync:
         self.value_range = (0.0, 1.0)
         self.warnings = []  # what the render reports (log scale over values <= 0, missing frames)
         self.errors = []  # sequence frames that could not be read (the rest still renders)
-        self.tf_users = []  # (grid name, object TF or None for the scene's) of non-level-set objects
+        # (grid name, object TF or None for the scene's) of non-level-set objects; an object
+        # coloured by a second grid: (that grid, its colour map)
+        self.tf_users = []
         self.size = 0.0  # largest world box diagonal of the objects on the scene's transfer function
 
     # -- change tracking (viewport) ---------------------------------------------------------
@@ -362,8 +364,12 @@ class SceneSync:
                 scene_items.append(e.values)
                 size = max(size, diag)
             tf_of = gs if own is not None else settings
-            if e.values is not None:
+            color = self._color(gs, e)
+            if color:  # its colours are the colour map's: that is what the legend shows
+                self.tf_users.append((gs.color_grid, color["color_tf"]))
+            elif e.values is not None:
                 self.tf_users.append((gs.grid_name or orig.name, own))
+            if e.values is not None:
                 if tf_of.log_scale:
                     msg = log_warning(gs.grid_name or orig.name, e.values[3])
                     if msg and msg not in self.warnings:
@@ -373,7 +379,7 @@ class SceneSync:
                                         clip=clip_halfspaces(gs, depsgraph, self.warnings),
                                         surface=gs.level_set_style == "SURFACE",
                                         shading=gs.shading.lower(), shadows=gs.shadows,
-                                        **self._color(gs, e)))
+                                        **color))
             total += e.count
 
         for name in list(self.entries):

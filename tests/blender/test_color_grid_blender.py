@@ -60,8 +60,13 @@ def test_scene_sync_hands_over_the_colour_map(scene, fire, bpy_module):
     assert plain.gaussvdb.color_grid == "" and "gs_color" not in plain.data.attributes
     coloured.gaussvdb.color_colormap = "magma"
     scene.gaussvdb.mode = "REFERENCE"
-    objs = {o.name: o for o in ss.SceneSync().sync(bpy.context.evaluated_depsgraph_get()).objects}
+    sync = ss.SceneSync()
+    objs = {o.name: o for o in sync.sync(bpy.context.evaluated_depsgraph_get()).objects}
     c, p = objs[coloured.name], objs[plain.name]
+    # the legend shows the colour map over the colour grid, and the plain object's scene TF
+    legend = {e.title: e for e in sync.legend_entries(sync.transfer_function(scene.gaussvdb))}
+    assert set(legend) == {"temperature", "density"}
+    np.testing.assert_array_equal(legend["temperature"].lut, c.color_tf.lut)
     assert p.color_tf is None and p.color_grid is None
     assert c.color_grid.name == "temperature" and c.grid.name == "density"
     st = coloured.gaussvdb.color_stats()
