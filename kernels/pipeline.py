@@ -197,12 +197,12 @@ def convert_lod(grid, name, weights="field", level_set_band=True, compute_error=
     return ConvertedLOD(name, gset, seconds, error, seconds_error)
 
 
-def add_color_values(cl, grid, cgrid, level_set_band=True):
+def add_color_values(cl, grid, cgrid):
     """The colour grid's value at each Gaussian of the ConvertedLOD ``cl`` (built from ``grid``)."""
     from .lod.second_grid import attach
 
     t0 = time.perf_counter()
-    attach(cl.gset, grid, cgrid, level_set_band)
+    attach(cl.gset, grid, cgrid)
     cl.seconds_color = time.perf_counter() - t0
 
 
@@ -288,7 +288,8 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
     adaptive LOD's field NRMSE bound; ``thresholds``: kernels.lod.DEFAULTS overrides for every
     LOD (they win over ``tolerance``). ``value_figures``: store voxel_stats (auto ranges).
     ``color_grid``: another grid of the file whose value every Gaussian also carries
-    (``gset.color_values``, kernels.lod.second_grid), to colour by it.
+    (``gset.color_values``, kernels.lod.second_grid), to colour by it (not level sets: they are
+    coloured by position).
     """
     from . import lod, vdb
 
@@ -325,9 +326,9 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             th = dict(tolerance=tolerance) if name == "adaptive" else {}
             th.update(thresholds or {})
             cg.lods.append(convert_lod(g, name, weights, level_set_band, compute_error, th))
-            if cgrid is not None:
-                add_color_values(cg.lods[-1], g, cgrid, level_set_band)
-        if cgrid is not None:
+            if cgrid is not None and g.grid_class != "level_set":  # level sets: coloured by position
+                add_color_values(cg.lods[-1], g, cgrid)
+        if cgrid is not None and g.grid_class != "level_set":
             from .render.transfer import voxel_stats
 
             cg.color_grid = cgrid.name

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
-from .gridprep import effective_masks
+from .levelset import band_masks
 
 _OFF = 1 << 20  # leaf coordinates are offset into 21 bits per axis for one int64 key
 
@@ -126,7 +126,16 @@ def gaussian_boxes(gs):
     return origins + (c2 - ext + 1) // 2, ext
 
 
-def second_values(gs, grid, second, level_set_band=True):
+def kept_masks(gs, grid):
+    """The voxels ``gs`` covers of its grid: the active ones, or a level set's band as build_lod
+    kept it (its threshold is in gs.params)."""
+    thr = (gs.params or {}).get("band_threshold")
+    if (gs.params or {}).get("level_set_band") and thr is not None:
+        return band_masks(grid.leaf_masks, grid.leaf_values, np.float32(thr))
+    return grid.leaf_masks
+
+
+def second_values(gs, grid, second):
     """float32 (M,): the second grid's value at each Gaussian of ``gs`` (built from ``grid``),
     from the same voxels and in the same order as the Gaussian's own value."""
     m = gs.count
@@ -137,7 +146,7 @@ def second_values(gs, grid, second, level_set_band=True):
     look = _Lookup(second)
     n_leaf = int(np.asarray(gs.group_start)[gs.n_leaf_groups]) if gs.n_leaf_groups else 0
     if n_leaf:
-        masks, _ = effective_masks(grid, level_set_band)
+        masks = kept_masks(gs, grid)
         kkeys = _keys(grid.leaf_origins)
         korder = np.argsort(kkeys, kind="stable")
         _box_means(np.ascontiguousarray(lo[:n_leaf]), np.ascontiguousarray(ext[:n_leaf]),
@@ -148,10 +157,10 @@ def second_values(gs, grid, second, level_set_band=True):
     return out
 
 
-def attach(gs, grid, second, level_set_band=True):
+def attach(gs, grid, second):
     """Carry the second grid on ``gs``: its values (second_values) and its background (what the
     field's colour mixture is away from the Gaussians). Returns gs."""
-    gs.color_values = second_values(gs, grid, second, level_set_band)
+    gs.color_values = second_values(gs, grid, second)
     gs.color_background = float(second.background or 0.0)
     return gs
 
