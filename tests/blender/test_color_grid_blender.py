@@ -1,4 +1,5 @@
-"""Colour by a second grid on the Blender side: the import carries the colour grid's values
+"""Colour by a second grid on the Blender side: the import (function and operator) carries the
+colour grid's values
 (gs_color) and its name, they read back bit for bit (after a save and reload too), the scene sync
 hands the colour map and, in reference mode, the colour grid to the kernels, a missing colour grid
 is a one-line error that creates nothing, and `./gaussvdb render --color-grid` changes the colour
@@ -108,3 +109,16 @@ def test_cli_color_grid(bpy_module, fire, tmp_path, mode):
     assert plain[..., 3].max() > 0.1
     np.testing.assert_array_equal(temp[..., 3], plain[..., 3])
     assert np.abs(temp[..., :3] - plain[..., :3]).max() > 0.05
+
+
+def test_operator_takes_a_colour_grid(scene, fire, bpy_module):
+    bpy = bpy_module
+    res = bpy.ops.gaussvdb.import_vdb(filepath=fire, grids="density", color_grid="temperature",
+                                      lods={"low"}, measure_error=False, use_sequence=False)
+    assert res == {"FINISHED"}
+    obj, = scene.objects
+    assert obj.gaussvdb.color_grid == "temperature" and "gs_color" in obj.data.attributes
+    with pytest.raises(RuntimeError, match="'heat'"):  # the operator's error report
+        bpy.ops.gaussvdb.import_vdb(filepath=fire, grids="density", color_grid="heat",
+                                    lods={"low"}, use_sequence=False)
+    assert len(scene.objects) == 1
