@@ -1,8 +1,8 @@
 """Colour by a second grid on the Blender side: the import (function and operator) carries the
-colour grid's values (gs_color) and its name, they read back bit for bit (after a save and reload too), the scene sync
-hands the colour map and, in reference mode, the colour grid to the kernels, a missing colour grid
-is a one-line error that creates nothing, and `./gaussvdb render --color-grid` changes the colour
-of the image but not its opacity."""
+colour grid's values (gs_color) and its name, they read back bit for bit (after a save and
+reload too), the scene sync hands the colour map and, in reference mode, the colour grid to the
+kernels, a missing colour grid is a one-line error that creates nothing, and `./gaussvdb render
+--color-grid` changes the colour of the image but not its opacity."""
 import importlib
 import json
 import os
