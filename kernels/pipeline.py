@@ -3,6 +3,7 @@ its sequences, `gaussvdb convert` and `render`, the benchmarks).
 
     cgs = convert_file("smoke.vdb", lods=("low", "medium"), progress=print, cancel=None)
     cgs[0].lods[1].gset                       # the Medium GaussianSet of the first grid
+    convert_file("fire.vdb", ["density"], color_grid="temperature")  # + gset.color_values
 
 ``convert_steps`` is the same as a generator that yields (fraction, text) before each step, so
 a modal operator can run one step per timer event; ``run`` drives one with a progress callback
@@ -100,6 +101,7 @@ class ConvertedLOD:
     seconds: float  # building the LOD
     error: dict = field(default_factory=dict)  # field_error's scalar figures ({} when not measured)
     seconds_error: float = 0.0  # measuring the field error (within seconds for the adaptive preset)
+    seconds_color: float = 0.0  # the colour grid's values at the Gaussians (gset.color_values)
 
 
 @dataclass
@@ -119,6 +121,8 @@ class ConvertedGrid:
     active_voxels: int = 0
     leaves: int = 0
     tiles: int = 0  # active tiles
+    color_grid: str = ""  # the grid of the same file the Gaussians also carry (color_values)
+    color_values: dict = field(default_factory=dict)  # voxel_stats of that grid: its auto range
 
     @property
     def is_level_set(self) -> bool:
@@ -193,6 +197,15 @@ def convert_lod(grid, name, weights="field", level_set_band=True, compute_error=
     return ConvertedLOD(name, gset, seconds, error, seconds_error)
 
 
+def add_color_values(cl, grid, cgrid):
+    """The colour grid's value at each Gaussian of the ConvertedLOD ``cl`` (built from ``grid``)."""
+    from .lod.second_grid import attach
+
+    t0 = time.perf_counter()
+    attach(cl.gset, grid, cgrid)
+    cl.seconds_color = time.perf_counter() - t0
+
+
 def measure_error(grid, gset) -> dict:
     """kernels.lod.field_error's scalar figures (the adaptive preset measured them while building)."""
     from . import lod
@@ -241,14 +254,42 @@ def read_grids(filepath, wanted=None, vector_magnitude=False, max_bytes=None, sk
     return chosen, seconds
 
 
+def read_color_grid(filepath, name, vector_magnitude=False, max_bytes=None):
+    """The colour grid ``name`` of ``filepath`` (a scalar grid; a vec3 one as its magnitude with
+    ``vector_magnitude``), NaN/Inf voxels made inactive; ConversionError naming the grid and file
+    when the file holds no such grid."""
+    from . import vdb
+
+    base = os.path.basename(filepath)
+    try:
+        names = [g.name for g in vdb.read_topology(filepath).grids]
+        if name not in names:
+            raise ConversionError(f"colour grid {name!r} not in {base} (it holds "
+                                  f"{', '.join(names) or 'no grids'})")
+        g = vdb.read_vdb(filepath, [name], max_bytes=max_bytes).grids[0]
+    except vdb.VDBFormatError as err:
+        raise ConversionError(f"cannot read colour grid {name!r} of {base}: {err.reason}") from err
+    except MemoryError as err:
+        raise ConversionError(f"cannot read colour grid {name!r} of {base}: out of memory") from err
+    if g.value_type.startswith("vec3") and not vector_magnitude:
+        raise ConversionError(f"colour grid {name!r} of {base} is a vector grid (enable 'Vector "
+                              "Grids as Magnitude' to colour by its magnitude)")
+    vdb.sanitize_nonfinite(g)
+    return g
+
+
 def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
                   vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None, *,
-                  tolerance=0.02, thresholds=None, index_limit=None, value_figures=True):
+                  tolerance=0.02, thresholds=None, index_limit=None, value_figures=True,
+                  color_grid=None):
     """Generator: yields (fraction < 1, text) before each step; returns [ConvertedGrid].
 
     ``grids``: names (a list or 'a, b'), or None for ``default_grids``. ``tolerance``: the
     adaptive LOD's field NRMSE bound; ``thresholds``: kernels.lod.DEFAULTS overrides for every
     LOD (they win over ``tolerance``). ``value_figures``: store voxel_stats (auto ranges).
+    ``color_grid``: another grid of the file whose value every Gaussian also carries
+    (``gset.color_values``, kernels.lod.second_grid), to colour by it (not level sets: they are
+    coloured by position).
     """
     from . import lod, vdb
 
@@ -257,6 +298,7 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
         raise ConversionError(f"unknown weights {weights!r}; choose from {', '.join(lod.WEIGHTS)}")
     filepath = os.path.abspath(os.path.expanduser(os.fspath(filepath)))
     yield 0.0, f"reading {os.path.basename(filepath)}"
+    cgrid = read_color_grid(filepath, color_grid, vector_magnitude, max_bytes) if color_grid else None
     chosen, seconds_read = read_grids(filepath, split_names(grids), vector_magnitude, max_bytes,
                                       skipped, index_limit)
     steps = len(chosen) * len(lods)
@@ -284,6 +326,13 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             th = dict(tolerance=tolerance) if name == "adaptive" else {}
             th.update(thresholds or {})
             cg.lods.append(convert_lod(g, name, weights, level_set_band, compute_error, th))
+            if cgrid is not None and g.grid_class != "level_set":  # level sets: coloured by position
+                add_color_values(cg.lods[-1], g, cgrid)
+        if cgrid is not None and g.grid_class != "level_set":
+            from .render.transfer import voxel_stats
+
+            cg.color_grid = cgrid.name
+            cg.color_values = dict(voxel_stats(cgrid), background=float(cgrid.background or 0.0))
         out.append(cg)
     return out
 

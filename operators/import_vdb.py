@@ -37,6 +37,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
     grids: StringProperty(name="Grids", default="", options={"SKIP_PRESET"},
                           description="Comma-separated grid names (empty: every scalar grid; of a "
                                       "Mantaflow cache only density, not the domain-wide shadow)")
+    color_grid: StringProperty(name="Colour Grid", default="", options={"SKIP_PRESET"},
+                               description="Another grid of the same file that colours the "
+                                           "imported grids (e.g. a fire's temperature, opacity "
+                                           "by density); empty: each is coloured by itself")
     lods: EnumProperty(name="LODs", items=lod_names.enum_items(), options={"ENUM_FLAG"},
                        default={lod_names.DEFAULT},
                        description="LOD presets stored on each object (shift-click for several)")
@@ -70,6 +74,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             from ..gaussvdb_addon.io import importer
 
             layout.label(text=importer.default_grids_hint(self.filepath), icon="INFO")
+        layout.prop(self, "color_grid")
         col = layout.column(heading="LODs")
         col.prop(self, "lods")
         if self.lods & set(lod_names.TOLERANCE_PRESETS):
@@ -93,7 +98,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         return dict(grids=importer.split_names(self.grids), lods=sorted(self.lods),
                     weights=self.weights, level_set_band=self.level_set_band,
                     vector_magnitude=self.vector_magnitude, compute_error=self.measure_error,
-                    tolerance=self.tolerance, sequence=self.use_sequence)
+                    tolerance=self.tolerance, sequence=self.use_sequence,
+                    color_grid=self.color_grid.strip() or None)
 
     def execute(self, context):
         from ..gaussvdb_addon.engine import kernel_cache
@@ -128,7 +134,8 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         self._jobs = [importer.convert_steps(p, opts["grids"], opts["lods"], opts["weights"],
                                              opts["level_set_band"], opts["vector_magnitude"],
                                              None, opts["compute_error"], self._skipped,
-                                             tolerance=opts["tolerance"])
+                                             tolerance=opts["tolerance"],
+                                             color_grid=opts["color_grid"])
                       for p in paths]
         self._done = []
         self._npaths = len(paths)

@@ -487,3 +487,35 @@ def write_mantaflow_like(path, shape=(24, 20, 16)):
              _float_grid(ov, "flame", np.zeros(shape, np.float32))]
     ov.write(str(path), grids=grids)
     return path
+
+
+def fire_like_values(shape=(32, 24, 24), seed=11, background=0.25):
+    """The arrays write_fire_like stores: density (sparse random voxels, a nearly constant
+    dense 16^3 corner that the merged LOD merges, a constant 8^3 block that becomes a tile) and
+    temperature (a ramp over a region shifted from the density's, so some density voxels have
+    no temperature voxel: those hold the background)."""
+    rng = np.random.default_rng(seed)
+    density = rng.random(shape, dtype=np.float32) * (rng.random(shape) < 0.35)
+    density[:16, :16, :16] = 0.5 + 0.002 * rng.random((16, 16, 16), dtype=np.float32)  # merges
+    density[16:24, 0:8, 0:8] = 0.6  # one constant leaf: an active tile
+    x = np.arange(shape[0], dtype=np.float32)[:, None, None]
+    temperature = np.full(shape, background, np.float32)
+    temperature[4:, :, 2:] = (1.0 + x / shape[0] + 0.1 * rng.random(shape, dtype=np.float32))[4:, :, 2:]
+    return density, temperature
+
+
+def write_fire_like(path, background=0.25):
+    """Two fog grids of one fire: ``density`` and ``temperature`` (fire_like_values), the
+    temperature with background ``background`` and a constant block of 3.0 at (32, 0, 0) + 16^3
+    beside the density's leaves (a tile). Returns the path."""
+    ov = openvdb()
+    density, temperature = fire_like_values(background=background)
+    d = _float_grid(ov, "density", density)
+    t = ov.FloatGrid(float(background))
+    t.name = "temperature"
+    t.gridClass = ov.GridClass.FOG_VOLUME
+    t.copyFromArray(np.ascontiguousarray(temperature), ijk=(0, 0, 0))
+    t.fill((16, 0, 8), (31, 15, 23), 3.0, True)
+    t.prune()
+    ov.write(str(path), grids=[d, t])
+    return path

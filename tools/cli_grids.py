@@ -16,6 +16,24 @@ def unusable(grid, vector_magnitude=False):
     return None
 
 
+def check_color_grid(path, name, vector_magnitude=False) -> str:
+    """The colour grid ``name`` (--color-grid), checked like --grid: InputError naming the grid and
+    the file when the file holds no such usable grid."""
+    from kernels.vdb import read_topology
+
+    topo = read_topology(path)
+    listed = [g.name for g in topo.grids] + [n for n, _ in topo.skipped]
+    if name not in listed:
+        raise InputError(f"no colour grid {name!r} in {path} (grids: {', '.join(listed) or 'none'})")
+    reasons = dict(topo.skipped)
+    reasons.update((g.name, why) for g in topo.grids
+                   if g.value_type.startswith("vec3") and not vector_magnitude
+                   and (why := unusable(g, vector_magnitude)))
+    if name in reasons:
+        raise InputError(f"colour grid {name!r} of {path} cannot be used: {reasons[name]}")
+    return name
+
+
 def choose_grid(path, grid=None, vector_magnitude=False) -> str:
     """The named grid, or the first usable default one; InputError naming the file and each
     grid's reason. A file the reader refuses raises its VDBFormatError (which names the file and

@@ -54,7 +54,7 @@ PHASES = ("seconds_start", "seconds_topology", "seconds_read", "seconds_prepare"
 
 
 def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=True, error=True,
-            out=None, vector_magnitude=False, **thresholds) -> dict:
+            out=None, vector_magnitude=False, color_grid=None, **thresholds) -> dict:
     import cli_grids
     import numpy as np
 
@@ -64,6 +64,8 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
     t_start = started_seconds_ago()
     t0 = time.perf_counter()
     name = cli_grids.choose_grid(path, grid, vector_magnitude)
+    if color_grid:
+        cli_grids.check_color_grid(path, color_grid, vector_magnitude)
     t_topology = time.perf_counter() - t0
     t0 = time.perf_counter()
     with warnings.catch_warnings():  # NaN/Inf voxels: said in one line below
@@ -71,7 +73,7 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
         try:
             cg = pipeline.convert_file(path, [name], [lod], weights, level_set_band, vector_magnitude,
                                        compute_error=error, thresholds=thresholds,
-                                       value_figures=False)[0]
+                                       value_figures=False, color_grid=color_grid)[0]
         except pipeline.ConversionError as err:
             raise cli_errors.InputError(str(err)) from err
     t_pipeline = time.perf_counter() - t0
@@ -127,6 +129,13 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
                    field_k_sigma=e["k_sigma"])
         if "surface_iou" in e:
             res.update(surface_iou=e["surface_iou"], surface_mismatch=e["surface_mismatch"])
+    if color_grid:  # the colour grid's value at every Gaussian (timed within seconds_prepare)
+        cv = gs.color_values.astype(np.float64)
+        fin = np.isfinite(cv)
+        res.update(color_grid=color_grid, seconds_color=cl.seconds_color,
+                   color_min=float(cv[fin].min()) if fin.any() else None,
+                   color_max=float(cv[fin].max()) if fin.any() else None)
+        enc = dict(enc, color_values=gs.color_values)
     t0 = time.perf_counter()
     if out:
         np.savez(out, **enc)
@@ -217,6 +226,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--lod", choices=PRESETS, default="medium")
     ap.add_argument("--weights", choices=WEIGHTS, default="field")
     ap.add_argument("--out", help="write the compact encoding to this .npz")
+    ap.add_argument("--color-grid", metavar="NAME",
+                    help="also the value of this other grid at every Gaussian (stored in --out "
+                         "as color_values)")
     ap.add_argument("--json", action="store_true", help="one line of JSON")
     ap.add_argument("--no-band", action="store_true",
                     help="level sets: keep the whole narrow band, not only the zero-crossing shell")
@@ -238,6 +250,9 @@ def main(argv: list[str]) -> int:
         if not a.cache_dir:
             raise cli_errors.UsageError("a sequence converts into a disk cache: give --cache-dir DIR",
                                         "gaussvdb convert")
+        if a.color_grid:
+            raise cli_errors.UsageError("--color-grid converts one file, not a sequence",
+                                        "gaussvdb convert")
         if th or a.out:  # the cache must hold what the add-on would convert
             raise cli_errors.UsageError("--cache-dir takes the preset's own thresholds and no --out",
                                         "gaussvdb convert")
@@ -250,7 +265,8 @@ def main(argv: list[str]) -> int:
         print(json.dumps(res) if a.json else json.dumps(res, indent=2))
         return 1 if res["errors"] else 0
     res = convert(a.file, a.grid, a.lod, a.weights, level_set_band=not a.no_band,
-                  error=not a.no_error, out=a.out, vector_magnitude=a.vector_magnitude, **th)
+                  error=not a.no_error, out=a.out, vector_magnitude=a.vector_magnitude,
+                  color_grid=a.color_grid, **th)
     res = finish_timing(res)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0

@@ -1,7 +1,8 @@
 """`./gaussvdb render FILE.vdb|'DIR/name_####.vdb' [--frames A-B] [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
 [--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI]
-[--level-set surface|shell] [--shading emission|lit] [--shadows] [--json]`
+[--level-set surface|shell] [--shading emission|lit] [--shadows] [--color-grid NAME
+[--color-map NAME]] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
@@ -69,6 +70,11 @@ def parse(argv):
     p.add_argument("--shadows", action="store_true",
                    help="lit volumes: a sun from above lights them through the medium (the "
                         "headlight casts no shadows)")
+    p.add_argument("--color-grid", default=None, metavar="NAME",
+                   help="colour by this other grid of the file (a fire's temperature); the "
+                        "opacity stays the transfer function's over --grid")
+    p.add_argument("--color-map", default="inferno", type=str.lower, choices=colormap_names(),
+                   help="the colormap over --color-grid (default inferno), over its active voxels' range")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
     a.width, a.height = a.size
@@ -145,6 +151,7 @@ def build_scene(bpy, objs, args, box=None):
         o.gaussvdb.level_set_style = args.level_set.upper()
         o.gaussvdb.shading = args.shading.upper()
         o.gaussvdb.shadows = bool(args.shadows)
+        o.gaussvdb.color_colormap = getattr(args, "color_map", None) or "inferno"
     return scene
 
 
@@ -186,6 +193,8 @@ def render(args) -> dict:
     from blender_session import addon_module, start
 
     grid = cli_grids.choose_grid(args.file, args.grid, args.vector_magnitude)
+    if args.color_grid:
+        cli_grids.check_color_grid(args.file, args.color_grid, args.vector_magnitude)
     bpy = start()
     importer = addon_module("gaussvdb_addon.io.importer")
     final_render = addon_module("gaussvdb_addon.engine.final_render")
@@ -195,13 +204,15 @@ def render(args) -> dict:
     try:
         objs = importer.import_vdb(os.path.abspath(args.file), grids=[grid], lods=(args.lod,),
                                    weights=args.weights, vector_magnitude=args.vector_magnitude,
-                                   collection=bpy.context.scene.collection, compute_error=False)
+                                   collection=bpy.context.scene.collection, compute_error=False,
+                                   color_grid=args.color_grid)
     except importer.ImportError_ as err:
         raise InputError(f"{args.file}: {err}") from err
     seconds_import = time.perf_counter() - t0
     scene = build_scene(bpy, objs, args)
     stats = quiet_render(final_render, scene, os.path.abspath(args.out))
     stats.update(seconds_import=seconds_import, lod=args.lod, grid=grid, colormap=args.colormap,
+                 color_grid=args.color_grid,
                  file=os.path.abspath(args.file), out=os.path.abspath(args.out))
     return stats
 
@@ -222,6 +233,8 @@ def quiet_render(final_render, scene, out) -> dict:
 
 def main(argv) -> int:
     args = parse(argv)
+    if args.color_grid and (args.frames or "#" in os.path.basename(args.file)):
+        raise UsageError("--color-grid colours one file, not a sequence", "gaussvdb render")
     if args.frames or "#" in os.path.basename(args.file):
         import render_sequence
 

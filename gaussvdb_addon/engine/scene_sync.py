@@ -12,7 +12,9 @@ reference mode needs.
 Transfer functions: an object with "Use Scene Transfer Function" off gets its own
 (``RenderObject.tf``); the scene's auto range is the union over the objects that use the scene's.
 Auto ranges come from the voxel figures stored at import (the same for every LOD), else from the
-drawn LOD's values. ``warnings`` lists what the render should report (log scale on values <= 0).
+drawn LOD's values. An object imported with a colour grid (``gaussvdb.color_grid``) gets its
+colour map over that grid (``RenderObject.color_tf``; reference mode: that grid's voxels too).
+``warnings`` lists what the render should report (log scale on values <= 0).
 """
 
 import os
@@ -38,31 +40,57 @@ def read_gaussians(obj, lod, depsgraph=None):
     return schema.gaussian_set_from_object(obj, lod, depsgraph=depsgraph)
 
 
-def source_grid(obj, path=None):
+def source_grid(obj, path=None, name=None):
     """The source GridData of an imported object (reference mode), read once and cached;
-    ``path``: the file of a sequence's current frame."""
+    ``path``: the file of a sequence's current frame; ``name``: another grid of that file (the
+    colour grid) instead of the object's own."""
     import bpy
 
     s = obj.gaussvdb
+    name = s.grid_name if name is None else name
     if path is None:
         path = bpy.path.abspath(s.source_file) if s.source_file else ""
     if not path or not os.path.isfile(path):
         raise ValueError(f"reference mode: source file of {obj.name!r} not found ({s.source_file!r})")
     st = os.stat(path)
-    key = (os.path.realpath(path), s.grid_name, st.st_mtime_ns, st.st_size)
+    key = (os.path.realpath(path), name, st.st_mtime_ns, st.st_size)
     with _GRID_LOCK:
         grid = _GRID_CACHE.get(key)
         if grid is None:
             from ...kernels.vdb import read_vdb
 
-            f = read_vdb(path, [s.grid_name] if s.grid_name else None)
-            grids = [g for g in f.grids if not s.grid_name or g.name == s.grid_name]
+            f = read_vdb(path, [name] if name else None)
+            grids = [g for g in f.grids if not name or g.name == name]
             if not grids:
-                raise ValueError(f"reference mode: grid {s.grid_name!r} not in {path}")
+                raise ValueError(f"reference mode: grid {name!r} not in {path}")
             grid = grids[0]
-            _GRID_CACHE.clear()  # keep one file's grids: they can be large
+            for k in [k for k in _GRID_CACHE if k[0] != key[0]]:
+                del _GRID_CACHE[k]  # keep one file's grids: they can be large
             _GRID_CACHE[key] = grid
     return grid
+
+
+def color_transfer(gs):
+    """The colour map over the object's colour grid (its colormap, range, log scale), or None
+    when it has no colour grid; alpha 1: the opacity is the transfer function's."""
+    if not gs.color_grid:
+        return None
+    st = gs.color_stats()
+    auto = None
+    if st is not None:
+        auto = value_range([st["positive_min"], st["max"]] if gs.color_log_scale and
+                           st.get("positive_min") is not None else [st["min"], st["max"]],
+                           gs.color_log_scale)
+    if gs.color_auto_range and auto is not None:
+        lo, hi = auto
+    else:
+        lo, hi = float(gs.color_min), float(gs.color_max)
+        if hi <= lo:
+            hi = lo + 1e-6
+    if gs.color_log_scale and not (lo > 0 and hi > 0):
+        lo, hi = (max(hi * 1e-3, 1e-12), max(hi, 1e-9)) if hi > 0 else (1e-3, 1.0)
+    return TransferFunction.from_colormap(gs.color_colormap, lo, hi, alpha="constant",
+                                          log_scale=gs.color_log_scale)
 
 
 # -- settings -> kernel objects -----------------------------------------------------------------
@@ -209,7 +237,7 @@ def scene_lights(depsgraph):
 
 
 class _Entry:
-    __slots__ = ("key", "gaussians", "grid", "values", "count", "frame")
+    __slots__ = ("key", "gaussians", "grid", "values", "count", "frame", "color_grid")
 
 
 class SceneSync:
@@ -228,7 +256,9 @@ class SceneSync:
         self.value_range = (0.0, 1.0)
         self.warnings = []  # what the render reports (log scale over values <= 0, missing frames)
         self.errors = []  # sequence frames that could not be read (the rest still renders)
-        self.tf_users = []  # (grid name, object TF or None for the scene's) of non-level-set objects
+        # (grid name, object TF or None for the scene's) of non-level-set objects; an object
+        # coloured by a second grid: (that grid, its colour map)
+        self.tf_users = []
         self.size = 0.0  # largest world box diagonal of the objects on the scene's transfer function
 
     # -- change tracking (viewport) ---------------------------------------------------------
@@ -273,7 +303,7 @@ class SceneSync:
         if e is None or e.key != key:
             e = _Entry()
             e.key = key
-            e.grid = None
+            e.grid = e.color_grid = None
             if frame is not None:
                 e.gaussians = frame.gaussians
                 own = orig.gaussvdb.sequence_range == "FRAME"
@@ -288,6 +318,9 @@ class SceneSync:
         e.frame = frame
         if need_grid and e.grid is None and e.gaussians is not None:
             e.grid = source_grid(orig, frame.path if frame is not None else None)
+            if orig.gaussvdb.color_grid:
+                e.color_grid = source_grid(orig, frame.path if frame is not None else None,
+                                           orig.gaussvdb.color_grid)
             if e.values is None and e.grid.grid_class != "level_set" and e.grid.active_voxels:
                 st = voxel_stats(e.grid)
                 e.values = (st["min"], st["max"], st["positive_min"],
@@ -331,8 +364,12 @@ class SceneSync:
                 scene_items.append(e.values)
                 size = max(size, diag)
             tf_of = gs if own is not None else settings
-            if e.values is not None:
+            color = self._color(gs, e)
+            if color:  # its colours are the colour map's: that is what the legend shows
+                self.tf_users.append((gs.color_grid, color["color_tf"]))
+            elif e.values is not None:
                 self.tf_users.append((gs.grid_name or orig.name, own))
+            if e.values is not None:
                 if tf_of.log_scale:
                     msg = log_warning(gs.grid_name or orig.name, e.values[3])
                     if msg and msg not in self.warnings:
@@ -341,7 +378,8 @@ class SceneSync:
                                         name=orig.name, tf=own,
                                         clip=clip_halfspaces(gs, depsgraph, self.warnings),
                                         surface=gs.level_set_style == "SURFACE",
-                                        shading=gs.shading.lower(), shadows=gs.shadows))
+                                        shading=gs.shading.lower(), shadows=gs.shadows,
+                                        **color))
             total += e.count
 
         for name in list(self.entries):
@@ -359,6 +397,14 @@ class SceneSync:
         self.dirty = False
         self.builds += 1
         return rs
+
+    @staticmethod
+    def _color(gs, e):
+        """RenderObject's colour-grid arguments of an object (none without a colour grid, or when
+        its Gaussians carry no colour values: an older file, a Geometry Nodes edit)."""
+        if not gs.color_grid or getattr(e.gaussians, "color_values", None) is None:
+            return {}
+        return dict(color_tf=color_transfer(gs), color_grid=e.color_grid)
 
     def _object_tf(self, gs, e, size):
         """The object's own transfer function (its colormap/ramp, range, log scale, density; the

@@ -81,6 +81,7 @@ def _settings_to_object(obj, cg, stats, options):
     else:
         st.source_file = cg.filepath
     st.grid_name = cg.name
+    st.color_grid = cg.color_grid
     st.grid_class = cg.grid_class
     st.value_type = cg.value_type
     st.lods = ",".join(cl.name for cl in cg.lods)
@@ -93,6 +94,8 @@ def _settings_to_object(obj, cg, stats, options):
     st.layout_version = schema.LAYOUT_VERSION
     figures = {"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels, "values": cg.values,
                "seconds_compile": cg.seconds_compile}
+    if cg.color_grid:
+        figures["color_values"] = cg.color_values
     if cg.sequence:
         figures["sequence"] = cg.sequence["figures"]
     lod_figures.store(st, figures)

@@ -3,6 +3,7 @@
 Scripts, the operator, the Reload button and the CLI all call these:
 
     objs = import_vdb("smoke.vdb", lods=("low", "medium"))       # -> list of Objects
+    import_vdb("fire.vdb", ["density"], color_grid="temperature")  # coloured by temperature
     gset = gaussian_set_from_object(objs[0], "medium")            # -> kernels.lod.GaussianSet
 
 Two phases, so an error or a cancel leaves nothing half-built: ``convert_file`` reads and converts
@@ -97,9 +98,10 @@ def selected_paths(filepath, directory="", files=()) -> list:
 # -- phase 1: read and convert (no Blender data) ---------------------------------------------------
 def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
                   vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None, *,
-                  tolerance=0.02):
+                  tolerance=0.02, color_grid=None):
     """kernels.pipeline.convert_steps for an import: grids whose index coordinates float32
-    attributes cannot hold exactly are refused, and the last step creates the objects."""
+    attributes cannot hold exactly are refused, and the last step creates the objects.
+    ``color_grid``: a grid of the same file whose value each Gaussian carries (gs_color)."""
     from ..engine import kernel_cache
 
     kernel_cache.announce("vdb", "lod")
@@ -107,7 +109,8 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
 
     out = yield from pipeline.convert_steps(filepath, grids, lods, weights, level_set_band,
                                             vector_magnitude, max_bytes, compute_error, skipped,
-                                            tolerance=tolerance, index_limit=ORIGIN_LIMIT)
+                                            tolerance=tolerance, index_limit=ORIGIN_LIMIT,
+                                            color_grid=color_grid or None)
     yield 1.0, "creating objects"
     return out
 
@@ -144,10 +147,11 @@ class _Progress:
 
 def convert_file(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
                  vector_magnitude=False, max_bytes=None, compute_error=True, progress=None,
-                 cancel=None, skipped=None, *, tolerance=0.02) -> list:
+                 cancel=None, skipped=None, *, tolerance=0.02, color_grid=None) -> list:
     """Read and convert one file (no Blender data is touched). Raises ImportError_/ImportCancelled."""
     steps = convert_steps(filepath, grids, lods, weights, level_set_band, vector_magnitude,
-                          max_bytes, compute_error, skipped, tolerance=tolerance)
+                          max_bytes, compute_error, skipped, tolerance=tolerance,
+                          color_grid=color_grid)
     report = _Progress(progress) if progress is not None else None
     try:
         return pipeline.run(steps, report, cancel)
@@ -159,21 +163,26 @@ def convert_file(filepath, grids=None, lods=("medium",), weights="field", level_
 # -- the entry points ------------------------------------------------------------------------------
 def import_vdb(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
                vector_magnitude=False, collection=None, progress=None, cancel=None, max_bytes=None,
-               compute_error=True, skipped=None) -> list:
-    """Import the grids of one .vdb file; returns the new objects (one per grid)."""
+               compute_error=True, skipped=None, color_grid=None) -> list:
+    """Import the grids of one .vdb file; returns the new objects (one per grid). ``color_grid``:
+    another grid of the file that colours them (its value carried on every Gaussian); a name
+    the file does not hold raises ImportError_ naming the grid and the file."""
     converted = convert_file(filepath, grids, lods, weights, level_set_band, vector_magnitude,
-                             max_bytes, compute_error, progress, cancel, skipped)
+                             max_bytes, compute_error, progress, cancel, skipped,
+                             color_grid=color_grid)
     return build_objects(converted, collection, dict(weights=weights, level_set_band=level_set_band,
                                                      vector_magnitude=vector_magnitude))
 
 
 def import_files(context, paths, grids=None, lods=("medium",), weights="field",
                  level_set_band=True, vector_magnitude=False, progress=None, cancel=None,
-                 max_bytes=None, compute_error=True, sequence=True, *, tolerance=0.02):
+                 max_bytes=None, compute_error=True, sequence=True, *, tolerance=0.02,
+                 color_grid=None):
     """Import several files; all are converted before any object is created. -> (objects, message)
 
     With ``sequence`` a numbered file with numbered siblings (or several numbered files
-    selected) imports as one sequence: one object per grid following the timeline."""
+    selected) imports as one sequence: one object per grid following the timeline (sequences
+    take no colour grid: ``color_grid`` applies to single files)."""
     if not paths:
         raise ImportError_("no file selected")
     import time
@@ -186,6 +195,9 @@ def import_files(context, paths, grids=None, lods=("medium",), weights="field",
     skipped = []
     for pat, items, is_seq in sequence_import.sequences(paths) if sequence else [(None, paths, False)]:
         if is_seq:
+            if color_grid:
+                raise ImportError_(f"{os.path.basename(items[0])}: a colour grid is for single "
+                                   "files, not sequences (turn Sequence off)")
             converted += sequence_import.convert_sequence(
                 pat.path(items[0]), items if len(items) > 1 else None, grids, lods, weights,
                 level_set_band, vector_magnitude, max_bytes, compute_error, progress, cancel, skipped,
@@ -194,7 +206,7 @@ def import_files(context, paths, grids=None, lods=("medium",), weights="field",
         for path in items if pat is None else [pat.path(n) for n in items]:
             converted += convert_file(path, grids, lods, weights, level_set_band, vector_magnitude,
                                       max_bytes, compute_error, progress, cancel, skipped,
-                                      tolerance=tolerance)
+                                      tolerance=tolerance, color_grid=color_grid)
     collection = None
     if context is not None and getattr(context, "view_layer", None) is not None:
         collection = context.view_layer.active_layer_collection.collection
@@ -289,7 +301,8 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     else:
         converted = convert_file(path, [st.grid_name], lod_names(obj),
                                  st.weights_rule(), st.level_set_band, st.vector_magnitude,
-                                 max_bytes, compute_error, progress, cancel)
+                                 max_bytes, compute_error, progress, cancel,
+                                 color_grid=st.color_grid or None)
     cg = next((c for c in converted if c.name == st.grid_name), None)
     if cg is None:
         raise ImportError_(f"{os.path.basename(path)} no longer holds grid {st.grid_name!r}")
@@ -303,7 +316,7 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
     try:
         obj.data = new.data
         # (the source path stays as the user left it: relative, or found elsewhere)
-        for key in ("grid_class", "value_type", "lods", "layout_version"):
+        for key in ("grid_class", "value_type", "lods", "layout_version", "color_grid"):
             setattr(st, key, getattr(new.gaussvdb, key))
         lod_figures.copy(new.gaussvdb, st)
         st.index_to_world = new.gaussvdb.index_to_world

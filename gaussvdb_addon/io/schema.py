@@ -13,6 +13,8 @@ list, each LOD's Gaussians in the kernel's order (groups ascending). Point attri
   gs_value      FLOAT         value the Gaussian stands for (absent for level sets)
   gs_amplitude  FLOAT         peak occupancy (absent when all are 1: paper weights)
   gs_voxels     INT           voxels the Gaussian represents
+  gs_color      FLOAT         the colour grid's value at the Gaussian (only when imported with one:
+                              ``gaussvdb.color_grid``; kernels/lod/second_grid.py)
 
 The object's ``matrix_world`` is the grid's index-to-world transform (also stored exactly, as
 float64 text, in ``gaussvdb.index_to_world``); ``gaussvdb.stats_json`` holds the per-LOD figures
@@ -42,6 +44,7 @@ ATTRIBUTES = {  # name -> (Blender type, numpy dtype, components)
     "gs_value": ("FLOAT", np.float32, 1),
     "gs_amplitude": ("FLOAT", np.float32, 1),
     "gs_voxels": ("INT", np.int32, 1),
+    "gs_color": ("FLOAT", np.float32, 1),
 }
 BLENDER_DTYPES = {"FLOAT": np.float32, "INT": np.int32, "INT8": np.int8, "BOOLEAN": bool}
 
@@ -59,6 +62,7 @@ def point_arrays(cg) -> dict:
     vals = np.empty(m, np.float32)
     amps = np.empty(m, np.float32)
     vox = np.empty(m, np.int32)
+    colors = np.empty(m, np.float32) if cg.color_grid else None
     at = 0
     for i, s in enumerate(sets):
         n = s.count
@@ -75,6 +79,8 @@ def point_arrays(cg) -> dict:
         vals[sl] = s.values
         amps[sl] = s.amplitudes
         vox[sl] = s.voxels
+        if colors is not None:
+            colors[sl] = s.color_values
         at += n
     out = {
         "position": ("FLOAT_VECTOR", centres, 3),
@@ -89,6 +95,8 @@ def point_arrays(cg) -> dict:
     if not np.all(amps == 1.0):
         out["gs_amplitude"] = ("FLOAT", amps, 1)
     out["gs_voxels"] = ("INT", vox, 1)
+    if colors is not None:
+        out["gs_color"] = ("FLOAT", colors, 1)
     return out
 
 
@@ -268,8 +276,11 @@ def gaussian_set_from_object(obj, lod=None, depsgraph=None):
         lod = active_lod(orig, render=True)
     idx = lod_index(orig, lod)
     arrays = upgrade_arrays(read_attributes(obj, depsgraph), version)
-    return gaussian_set_from_arrays(arrays, idx, lod_names(orig), object_stats(orig), st.grid_class,
-                                    st.weights_rule(), stored_index_to_world(orig), fallback_name=str(lod))
+    gs = gaussian_set_from_arrays(arrays, idx, lod_names(orig), object_stats(orig), st.grid_class,
+                                  st.weights_rule(), stored_index_to_world(orig), fallback_name=str(lod))
+    if gs.color_values is not None:
+        gs.color_background = float((st.color_stats() or {}).get("background", 0.0))
+    return gs
 
 
 def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to_world,
@@ -308,6 +319,7 @@ def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to
     values = a["gs_value"][sel].copy() if "gs_value" in a else np.ones(m, np.float32)
     amps = a["gs_amplitude"][sel].copy() if "gs_amplitude" in a else np.ones(m, np.float32)
     voxels = a["gs_voxels"][sel].copy() if "gs_voxels" in a else np.ones(m, np.int32)
+    colors = a["gs_color"][sel].astype(np.float32) if "gs_color" in a else None
     name = names[idx] if idx < len(names) else fallback_name
     stats = next((s for s in stats if s.get("lod") == (names[idx] if idx < len(names) else None)), {})
     scale = float(stats.get("sigma_scale") or 0.0)
@@ -320,7 +332,7 @@ def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to
         voxels=voxels.astype(np.int32), grid_class=grid_class or "fog_volume", lod=name,
         weights=weights or "field", index_to_world=index_to_world,
         background=0.0, n_leaf_groups=int(stats.get("n_leaf_groups", len(group_origins))),
-        size_codes=codes, sigma_scale=scale or 0.6, params=params)
+        size_codes=codes, sigma_scale=scale or 0.6, params=params, color_values=colors)
 
 
 def converted_gaussian_set(cg):
@@ -329,5 +341,7 @@ def converted_gaussian_set(cg):
     arrays = point_arrays(cg)
     a = {k: arr for k, (_, arr, _) in arrays.items()}
     names = [cl.name for cl in cg.lods]
-    return gaussian_set_from_arrays(a, 0, names, lod_stats(cg, bytes_per_point(arrays)),
-                                    cg.grid_class, cg.lods[0].gset.weights, cg.index_to_world)
+    gs = gaussian_set_from_arrays(a, 0, names, lod_stats(cg, bytes_per_point(arrays)),
+                                  cg.grid_class, cg.lods[0].gset.weights, cg.index_to_world)
+    gs.color_background = cg.lods[0].gset.color_background
+    return gs

@@ -8,6 +8,8 @@ transfer function (the TransferFunctionProps fields) colours it instead of the s
 Clipping (``clip_*``): Empties that cut the object (kernels/render/clip.py), in every mode.
 ``level_set_style``: level sets as lit surfaces (default) or translucent shells.
 ``shading``/``shadows``: volumes emissive (default) or lit by the scene's lights, with shadows.
+``color_grid``: another grid of the file the Gaussians carry (gs_color); the ``color_*`` colour
+map over it colours the object, its transfer function (scene's or own) then sets only the opacity.
 """
 
 import json
@@ -17,13 +19,14 @@ from bpy.props import (
     BoolProperty,
     CollectionProperty,
     EnumProperty,
+    FloatProperty,
     FloatVectorProperty,
     IntProperty,
     PointerProperty,
     StringProperty,
 )
 
-from ...kernels import lod_names
+from ...kernels import colormap_names, lod_names
 from ..io import source_path
 from . import lod_figures
 from .transfer_settings import TransferFunctionProps
@@ -100,8 +103,27 @@ class VolumeShadingProps:
                                       "way (single scattering); the headlight casts none")
 
 
-class GaussVDBObjectSettings(ClipProps, SurfaceProps, VolumeShadingProps, TransferFunctionProps,
-                             bpy.types.PropertyGroup):
+class ColorGridProps:
+    """Colour by a second grid (imported with the object: gs_color): a colour map over that grid
+    with its own range; the transfer function keeps the opacity over the object's own grid."""
+    color_grid: StringProperty(name="Colour Grid",
+                               description="The grid of the same file that colours this object "
+                                           "(set at import; empty: coloured by its own grid)")
+    color_colormap: EnumProperty(name="Colour Map", items=colormap_names.enum_items(),
+                                 default="inferno", update=_tag,
+                                 description="Colormap over the colour grid's values")
+    color_auto_range: BoolProperty(name="Auto Range", default=True, update=_tag,
+                                   description="Colour range from the colour grid's active voxels")
+    color_min: FloatProperty(name="Min", default=0.0, update=_tag,
+                             description="Colour grid value at the colour map's left end")
+    color_max: FloatProperty(name="Max", default=1.0, update=_tag,
+                             description="Colour grid value at the colour map's right end")
+    color_log_scale: BoolProperty(name="Log Scale", default=False, update=_tag,
+                                  description="Spread the colour map over log(value)")
+
+
+class GaussVDBObjectSettings(ClipProps, SurfaceProps, VolumeShadingProps, ColorGridProps,
+                             TransferFunctionProps, bpy.types.PropertyGroup):
     is_gaussvdb: BoolProperty(name="GaussVDB Object", default=False)
     source_volume: PointerProperty(name="Source", type=bpy.types.Volume,
                                    description="Volume datablock holding the source file's path "
@@ -163,6 +185,11 @@ class GaussVDBObjectSettings(ClipProps, SurfaceProps, VolumeShadingProps, Transf
         """The grid's value figures stored at import (kernels.render.voxel_stats: min, max,
         positive_min, nonpositive, voxels), or None for objects imported before they were."""
         v = self.stats().get("values")
+        return v if isinstance(v, dict) and "min" in v and "max" in v else None
+
+    def color_stats(self):
+        """The colour grid's value figures stored at import (as voxel_stats), or None."""
+        v = self.stats().get("color_values") if self.color_grid else None
         return v if isinstance(v, dict) and "min" in v and "max" in v else None
 
 

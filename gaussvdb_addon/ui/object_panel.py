@@ -11,6 +11,23 @@ from ..properties import lod_figures
 FIGURE_COLUMNS = ("LOD", "Gaussians", "Memory", "NRMSE", "Time")
 
 
+def draw_color_grid(layout, settings):
+    """Colour by a second grid: which one (set at import) and its colour map and range."""
+    col = layout.column(heading="Colour")
+    row = col.row()
+    row.enabled = False
+    row.prop(settings, "color_grid")
+    col.prop(settings, "color_colormap")
+    col.prop(settings, "color_auto_range")
+    sub = col.column(align=True)
+    sub.active = not settings.color_auto_range
+    sub.prop(settings, "color_min")
+    sub.prop(settings, "color_max")
+    col.prop(settings, "color_log_scale")
+    col.label(text="Opacity: the transfer function over " + (settings.grid_name or "the grid"),
+              icon="INFO")
+
+
 def draw_clip(layout, settings):
     """Clipping: plane, box, collection of Empties (object_settings.ClipProps)."""
     col = layout.column(heading="Clip", align=True)
@@ -71,6 +88,8 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
             row.prop(settings, "shading")
             if settings.shading == "LIT":
                 row.prop(settings, "shadows")
+            if settings.color_grid:
+                draw_color_grid(layout, settings)
         draw_clip(layout, settings)
 
         if not len(settings.lod_stats):

@@ -29,6 +29,9 @@ class GaussianSet:
     size_codes: np.ndarray | None = None  # int32 (M, 3): sigma = sigma_scale * code (exact)
     sigma_scale: float = 0.6
     params: dict = field(default_factory=dict)
+    # a second grid of the same file on these Gaussians (second_grid.py): float32 (M,) or None
+    color_values: np.ndarray | None = None
+    color_background: float = 0.0  # that grid's background: its value away from the Gaussians
 
     # ---- derived -------------------------------------------------------------------------
     @property

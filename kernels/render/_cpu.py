@@ -146,7 +146,7 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
         else:
             reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, scr.ro, scr.rd, objs.step,
                             accel.bricks, accel.cell_xyz, objs.kind, objs.tf, objs.ls, xfer.lut,
-                            xfer.par, scr.samp, scr.acc, scr.sprev, objs, xfer, scr.wr)
+                            xfer.par, scr.samp, scr.acc, scr.sprev, objs, xfer, scr.wr, accel.cbricks)
         if st[TR] < st[TMIN] or st[HIT] > 0.0:
             return
 
@@ -308,7 +308,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
                   np.empty(n_obj, np.int64),
                   np.empty(5), np.empty(6), np.empty(6), np.empty(NST), np.empty(6, np.int64),
                   np.empty(5), np.empty(NB, np.int64), np.empty((NB, 8)), np.empty((n_obj, 2)),
-                  np.empty(6), np.empty((n_obj, 3)))
+                  np.empty(6), np.empty((n_obj, 3)), np.empty(n_obj))
     cap = 256
     hits = ray_scratch(cap)
     out.segs[jr0:jr0 + nr] = 0.0

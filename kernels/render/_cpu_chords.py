@@ -26,11 +26,11 @@ from .scene import Mode
 # hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
 # sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA (and a
 # running one, FB), colour, value (0 when NaN) and value weight (0 when NaN); field keeps V, R,
-# RC, EX (value, ratios, exit) and, for lit volumes, the gradient's terms GA (3) + t GB (3) by
-# active slot (sweep_field)
+# RC, EX (value, ratios, exit), for lit volumes the gradient's terms GA (3) + t GB (3) and, for
+# volumes coloured by a second grid, its mixture's term CV, by active slot (sweep_field)
 S, E, TS, SA, C, HQ, HA, PK, FA, FB, CR, CG, CB, VAL, VW = range(15)
-V, R, RC, EX, GA, GB = 8, 9, 10, 11, 12, 15
-NF = 18
+V, R, RC, EX, GA, GB, CV = 8, 9, 10, 11, 12, 15, 18
+NF = 19
 SQRT_HALF = math.sqrt(0.5)
 SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
 # g_rec columns: centre (3), 1/sigma (3), extinction weight, and (tile lists) the entry bound

@@ -36,6 +36,7 @@ from ._cpu_chords import (
     CEND,
     CG,
     CR,
+    CV,
     EX,
     FA,
     GA,
@@ -87,6 +88,7 @@ from ._cpu_math import (
     composite,
     composite_sample,
     erf_fast,
+    recolor,
     sample_color,
 )
 from ._cpu_surface import surface_hit
@@ -179,7 +181,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
 
 
 @njit(**_hot, inline="always")
-def _move_slot(H, act, k, j, glit):
+def _move_slot(H, act, k, j, glit, gcol):
     act[k] = act[j]
     H[k, V] = H[j, V]
     H[k, R] = H[j, R]
@@ -188,6 +190,8 @@ def _move_slot(H, act, k, j, glit):
     if glit:
         for c in range(6):
             H[k, GA + c] = H[j, GA + c]
+    if gcol:
+        H[k, CV] = H[j, CV]
 
 
 @njit(**_hot)
@@ -209,18 +213,25 @@ def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
 
 @njit(**_hot)
 def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind, obj_tf,
-                obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev, objs, xfer, wr, sgrad):
+                obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev, objs, xfer, wr, sgrad, g_cw,
+                cvals):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque.
     Surfaces (obj_kind 2): the mixture's first rise through 0.5 between samples (sprev: the
     object's previous sample value and index), placed by the secant; the volumes composite up to
     it and the ray ends there (mixture_hit). Lit volumes (objs.lit): each sample is shaded on the
     mixture's analytic gradient, sum_g -V_g (x - mu_g) / sigma_g^2 (sgrad per object; wr the
-    world ray; _cpu_lit)."""
+    world ray; _cpu_lit). Volumes coloured by a second grid (objs.ctf): its mixture, with the
+    weights g_cw on the same Gaussians, is carried beside the field (CV) and summed per object
+    (cvals); plus that grid's background (objs.cbg), it is the colour map's value."""
     q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
     obj_lit = objs.lit
+    obj_ctf = objs.ctf
     glit = False
     for ob in range(obj_lit.shape[0]):
         glit = glit or obj_lit[ob] != 0
+    gcol = False
+    for ob in range(obj_ctf.shape[0]):
+        gcol = gcol or obj_ctf[ob] >= 0
     hstep = fs[HSTEP]
     cend = fs[CEND]
     n_obj = ro.shape[0]
@@ -240,6 +251,8 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             d = ti - H[h, TS]
             ha = H[h, HA]
             H[k, V] = g_rec[hid[h], 6] * math.exp(-(H[h, HQ] + ha * d * d))
+            if gcol:
+                H[k, CV] = g_cw[hid[h]] * math.exp(-(H[h, HQ] + ha * d * d))
             H[k, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
             H[k, RC] = math.exp(-2.0 * ha * hstep * hstep)
             H[k, EX] = H[h, E]
@@ -265,13 +278,13 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
         if glit:
             for ob in range(n_obj):
                 sgrad[ob, 0] = sgrad[ob, 1] = sgrad[ob, 2] = 0.0
-        if n_obj == 1 and glit:
+        if n_obj == 1 and glit and not gcol:
             sv = 0.0
             gx = gy = gz = 0.0
             while k < nact:
                 if H[k, EX] <= ti:
                     nact -= 1
-                    _move_slot(H, act, k, nact, glit)
+                    _move_slot(H, act, k, nact, glit, gcol)
                     continue
                 v = H[k, V]
                 sv += v
@@ -284,12 +297,12 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             svals[0] = sv
             sact[0] = 1
             sgrad[0, 0], sgrad[0, 1], sgrad[0, 2] = gx, gy, gz
-        elif n_obj == 1:  # the sum in a register (svals[ob] += ... would store on every term)
+        elif n_obj == 1 and not gcol:  # the sum in a register (svals[ob] += ... would store on every term)
             sv = 0.0
             while k < nact:
                 if H[k, EX] <= ti:  # ended before this sample: drop it
                     nact -= 1
-                    _move_slot(H, act, k, nact, glit)
+                    _move_slot(H, act, k, nact, glit, gcol)
                     continue
                 sv += H[k, V]
                 H[k, V] *= H[k, R]
@@ -301,10 +314,11 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             for ob in range(n_obj):
                 svals[ob] = 0.0
                 sact[ob] = 0
+                cvals[ob] = 0.0
             while k < nact:
                 if H[k, EX] <= ti:
                     nact -= 1
-                    _move_slot(H, act, k, nact, glit)
+                    _move_slot(H, act, k, nact, glit, gcol)
                     continue
                 ob = g_obj[hid[act[k]]]
                 v = H[k, V]
@@ -313,6 +327,9 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
                 if glit:
                     for c in range(3):
                         sgrad[ob, c] -= v * (H[k, GA + c] + ti * H[k, GB + c])
+                if gcol:
+                    cvals[ob] += H[k, CV]
+                    H[k, CV] *= H[k, R]
                 H[k, V] *= H[k, R]
                 H[k, R] *= H[k, RC]
                 k += 1
@@ -338,6 +355,8 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             y = ro[ob, 1] + ti * rd[ob, 1]
             z = ro[ob, 2] + ti * rd[ob, 2]
             sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
+            if gcol:
+                recolor(ob, cvals[ob] + objs.cbg[ob], obj_ctf, tf_lut, tf_par, samp)
             if obj_lit[ob] != 0 and samp[0] > 0.0:
                 shade_sample(samp, ob, sgrad[ob, 0], sgrad[ob, 1], sgrad[ob, 2], x, y, z, wr, ti,
                              objs, xfer.lights, xfer.settings, tf_par[obj_tf[ob]])
@@ -366,7 +385,7 @@ def sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
     return sweep_field(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
                        hits.act, gauss.rec, gauss.obj, scr.ro, scr.rd, objs.kind, objs.tf, objs.ls,
                        xfer.lut, xfer.par, scr.svals, scr.sact, scr.samp, scr.acc, scr.sprev, objs, xfer,
-                       scr.wr, scr.sgrad)
+                       scr.wr, scr.sgrad, gauss.cw, scr.cvals)
 
 
 @njit(**_hot)

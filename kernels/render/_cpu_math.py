@@ -237,6 +237,23 @@ def sample_color(ob, s, x_idx, y_idx, z_idx, obj_kind, obj_tf, obj_ls, tf_lut, t
 
 
 @njit(**_hot, inline="always")
+def recolor(ob, cv, obj_ctf, tf_lut, tf_par, out):
+    """A volume coloured by a second grid (obj_ctf[ob] >= 0): the sample's colour from its colour
+    map at the second grid's value cv (NaN: black); its extinction and value stay the first
+    grid's."""
+    c = obj_ctf[ob]
+    if c < 0 or not out[0] > 0.0:
+        return
+    x = tf_x(cv, tf_par[c])
+    if x != x:
+        out[1] = out[2] = out[3] = 0.0
+        return
+    lut = tf_lut[c]
+    i, w = lut_pos(lut, x)
+    lut_rgb(lut, i, w, out)
+
+
+@njit(**_hot, inline="always")
 def add_sample(acc, samp):
     """Add one object's sample (sigma_t, rgb, value) to acc = (sigma, r, g, b, vsum, vweight)."""
     sg = samp[0]

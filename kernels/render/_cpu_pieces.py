@@ -26,10 +26,11 @@ from ._cpu_math import (
     composite,
     composite_sample,
     lut_pos,
+    recolor,
     sample_color,
     whitened_chord,
 )
-from ._cpu_surface import brick_xyz, sdf_crossing, surface_hit, trilinear_grad
+from ._cpu_surface import brick_xyz, sdf_crossing, surface_hit, trilinear, trilinear_grad
 
 
 @parallel_njit(**_jit)
@@ -48,14 +49,15 @@ def lut_rows(lut, x, out):
 
 @njit(**_hot)
 def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, bricks, cell_xyz,
-                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev, objs, xfer, wr):
+                    obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev, objs, xfer, wr, cbricks):
     """reference: trilinear voxel samples at midpoints, exact exponential compositing. Each
     object's medium exists only inside its leaves; objects overlapping in a piece add extinction,
     colours tau-weighted. Surfaces (obj_kind 2): the first sign change of the trilinear signed
     distance from + to - between samples (sprev: the object's previous one), refined by bisection;
     a ray that starts inside (a clip or the camera's cut) hits at its start. The volumes composite
     up to the hit, which ends the ray (surface_hit). Lit volumes: shaded on the voxels' gradient
-    (trilinear central differences, _cpu_lit); wr: the world ray."""
+    (trilinear central differences, _cpu_lit); wr: the world ray. Volumes coloured by a second
+    grid (objs.ctf) take the colour from its bricks (cbricks, the same cells), sampled alike."""
     dt = INF
     for c in range(ncov):
         ob = cov_obj[c]
@@ -102,6 +104,8 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
                 val = 0.5 - val / obj_ls[ob, 7]
             st[SEGS] += 1
             sample_color(ob, val, x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
+            if objs.ctf[ob] >= 0:
+                recolor(ob, trilinear(cbricks[cid], fx, fy, fz), objs.ctf, tf_lut, tf_par, samp)
             if objs.lit[ob] != 0 and samp[0] > 0.0:
                 gx, gy, gz = trilinear_grad(B, fx, fy, fz)
                 shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, xfer.lights, xfer.settings,

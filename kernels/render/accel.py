@@ -134,12 +134,15 @@ class Accel:
         return self
 
 
-def _kept_arrays(gs):
+def _kept_arrays(gs, colors=False):
     """gaussian_arrays without the Gaussians the renderer never draws (a zero or non-finite
-    sigma, centre or amplitude)."""
+    sigma, centre or amplitude); with colors, also their second-grid values (NaN without)."""
     mu, sig, v, a = gaussian_arrays(gs) if gs is not None else gaussian_arrays_empty()
     keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
-    return mu[keep], sig[keep], v[keep], a[keep]
+    if not colors:
+        return mu[keep], sig[keep], v[keep], a[keep]
+    cv = np.asarray(getattr(gs, "color_values", None) if gs is not None else None, np.float64)
+    return mu[keep], sig[keep], v[keep], a[keep], cv[:keep.shape[0]][keep] if cv.ndim else v[keep] * np.nan
 
 
 def gaussian_bounds(gs, support_k=None):
@@ -161,10 +164,10 @@ def build_gaussians(objects, support_k):
     n = len(objects)
     acc = Accel(n)
     acc.finish()
-    mus, invs, vals, amps, gobj, clos, chis, levs = [], [], [], [], [], [], [], []
+    mus, invs, vals, amps, gobj, clos, chis, levs, cvals = [], [], [], [], [], [], [], [], []
     acc.g_first = np.zeros(n + 1, np.int64)
     for k, ob in enumerate(objects):
-        mu, sig, v, a = _kept_arrays(ob.gaussians)
+        mu, sig, v, a, cv = _kept_arrays(ob.gaussians, colors=True)
         m = mu.shape[0]
         acc.g_first[k + 1] = acc.g_first[k] + m
         r = support_k * sig
@@ -177,6 +180,7 @@ def build_gaussians(objects, support_k):
         mus.append(mu)
         invs.append(1.0 / sig)
         vals.append(v)
+        cvals.append(cv)
         amps.append(a)
         gobj.append(np.full(m, k, np.int32))
     acc.cell_start = np.zeros(1, np.int64)
@@ -187,6 +191,7 @@ def build_gaussians(objects, support_k):
     acc.g_mu = np.ascontiguousarray(np.concatenate(mus)) if mus else np.zeros((0, 3))
     acc.g_inv = np.ascontiguousarray(np.concatenate(invs)) if invs else np.zeros((0, 3))
     acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
+    acc.g_cval = np.concatenate(cvals) if cvals else np.zeros(0)  # second grids' values (NaN: none)
     acc.g_amp = np.concatenate(amps) if amps else np.zeros(0)
     acc.g_obj = np.concatenate(gobj) if gobj else np.zeros(0, np.int32)
     # each Gaussian's level and range of that level's cells (inclusive): the kernels test it once
@@ -436,7 +441,10 @@ def _grid_leaves(grid):
 
 def build_voxel_accel(objects):
     """Reference-mode structure: one cell per VDB leaf with a 10^3 brick (apron of the
-    neighbours' voxels; voxels of missing leaves take the grid background)."""
+    neighbours' voxels; voxels of missing leaves take the grid background), and the colour
+    grids' bricks on the same cells (second_grid.object_bricks)."""
+    from ..lod.second_grid import object_bricks
+
     n = len(objects)
     acc = Accel(n)
     bricks = []
@@ -476,6 +484,7 @@ def build_voxel_accel(objects):
     acc.brick_hi = np.nanmax(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
     acc.cell_obj = np.concatenate([np.full(int(c), k, np.int32) for k, c in enumerate(_cell_counts(acc))]) \
         if acc.n_cells else np.zeros(0, np.int32)
+    acc.cbricks = object_bricks(objects, acc.cell_obj, acc.cell_xyz)
     return acc
 
 

@@ -177,13 +177,16 @@ class CPUDevice(Device):
     def _prepare(self, scene, tf):
         """The frame's transfer functions and the packed per-object and transfer tables."""
         tfs, obj_tf = packing.transfer_functions(scene, tf, resampled)
+        obj_ctf = packing.color_functions(scene, tfs, resampled)
         ref = self._gaussians().obj_ref if scene.mode != "reference" else np.zeros((max(1, len(scene.objects)), 3))
-        objects = packing.pack_objects(scene, obj_tf, self.w2i, self.coord_range, self.voxel_world, ref)
+        objects = packing.pack_objects(scene, obj_tf, self.w2i, self.coord_range, self.voxel_world, ref,
+                                       obj_ctf if (obj_ctf >= 0).any() else None)
         return tfs, objects, packing.pack_transfer(scene, tfs)
 
-    def _gauss_weights(self, mode, tfs, obj_tf, obj_kind, obj_ls):
+    def _gauss_weights(self, mode, tfs, obj_tf, obj_kind, obj_ls, obj_ctf=None):
         """Per-Gaussian extinction scale (particles/paper: density * alpha(v) * a; level sets:
-        density * a) and colour, or field weights (v * a; level sets: a)."""
+        density * a) and colour (a volume coloured by a second grid: its colour map at the
+        second grid's value), or field weights (v * a; level sets: a)."""
         A = self.gacc
         m = A.g_val.shape[0]
         w = np.zeros(m)
@@ -211,7 +214,26 @@ class CPUDevice(Device):
                 self._k.lut_rows(t.lut, np.where(np.isnan(v), np.nan, t.normalize(v)), rgba)
                 w[s] = t.density * rgba[:, 3] * a
                 col[s] = rgba[:, :3]
+                if obj_ctf is not None and obj_ctf[k] >= 0:
+                    ct, cv = tfs[obj_ctf[k]], A.g_cval[s]
+                    self._k.lut_rows(ct.lut, np.where(np.isnan(cv), np.nan, ct.normalize(cv)), rgba)
+                    col[s] = rgba[:, :3]
         return w, col
+
+    def _color_weights(self, obj_ctf):
+        """The colour grids' field weights ((second value - its background) x amplitude: the
+        colour mixture is that grid's background where no Gaussian is, as the reference mode's
+        voxels are) of the volumes coloured by one, zero elsewhere; None when no object is."""
+        if obj_ctf is None or not (obj_ctf >= 0).any():
+            return None
+        A = self.gacc
+        cw = np.zeros(A.g_val.shape[0])
+        for k in np.flatnonzero(obj_ctf >= 0):
+            s = slice(A.g_first[k], A.g_first[k + 1])
+            bg = float(getattr(self._objects[k].gaussians, "color_background", 0.0) or 0.0)
+            cv = A.g_cval[s]
+            cw[s] = np.where(np.isnan(cv), 0.0, cv - bg) * A.g_amp[s]
+        return cw
 
     def _cell_skip(self, mode, acc, w, tfs, obj_tf, obj_kind):
         c = acc.n_cells
@@ -292,7 +314,7 @@ class CPUDevice(Device):
         camera, settings and the transfer-function tables."""
         _, objects, transfer = prep
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
-                  objects.clip, transfer.lights, transfer.settings)
+                  objects.clip, transfer.lights, transfer.settings, objects.ctf, objects.cbg)
         return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes()) + tuple(
             np.ascontiguousarray(a).tobytes() for a in tables)
 
@@ -339,14 +361,20 @@ class CPUDevice(Device):
             acc = self._voxels()
             if acc is None:
                 raise ValueError("reference mode needs the source grids (RenderObject.grid)")
+            for k, o in enumerate(scene.objects):
+                if objects.ctf[k] >= 0 and o.color_grid is None:
+                    raise ValueError(f"reference mode: {o.name or 'an object'} is coloured by a "
+                                     "second grid but has none (RenderObject.color_grid)")
             gauss = packing.empty_gaussians()
         else:
             acc = self._gaussians()
-            g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, objects.ls)
+            ctf = objects.ctf if (objects.ctf >= 0).any() else None
+            g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, objects.ls, ctf)
             if self._g_rec is None or self._g_rec.shape[0] != acc.g_mu.shape[0]:
                 self._g_rec = packing.test_records(acc)
             lit = mode == Mode.PARTICLES and (objects.lit != 0).any()
             gauss = packing.pack_gaussians(acc, g_w, g_col, self._g_rec,
+                                           self._color_weights(ctf) if mode == Mode.FIELD else None,
                                            self._lit_gradients() if lit else None)
             *tiles, t_lb = self._screen_tiles(mode, scene, camera, gauss.w)
             if t_lb is not None:

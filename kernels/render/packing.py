@@ -17,25 +17,30 @@ from . import clip, lights
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
 # lists); sph: a float32 bounding sphere near obj_ref; clo/chi: the leaf-cell box of its support;
+# cw: the field weight of the colour grid's mixture ((colour value - its background) x amplitude;
+# objects coloured by a second grid, Objects.ctf; one dummy row when no object is);
 # grad: lit volumes in particles mode, the gradient of the other Gaussians' field at its centre
 # and its own field weight (value x amplitude), one dummy row otherwise.
-Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi grad")
+Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi cw grad")
 # Per object: world -> index matrix, kind (0 volume, 1 level-set shell, 2 level-set surface),
 # its transfer function's row, level-set colouring (see pack_objects), sample step in voxels,
 # clip half-spaces (clip.pack), the float32 reference point of the bounding spheres, shading (0
 # emission, LIT, LIT_SHADOWS: volumes only, see pack_objects) and the lit volumes' shadow grids
 # (sh_grid rows [origin xyz, spacing, dims xyz, offset into sh_tau]; sh_tau: the optical depth
-# towards each light at each grid point, light fastest; _cpu_lit).
-Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau")
+# towards each light at each grid point, light fastest; _cpu_lit) and, for a volume coloured by a
+# second grid, its colour map's transfer-function row (-1: coloured by its own values) and that
+# grid's background (its value where no Gaussian is: the field adds it to the colour mixture).
+Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf cbg")
 LIT, LIT_SHADOWS = 1, 2
 # Acceleration: the leaf hierarchy (node grids, node -> cell tables: per object its leaves, then
 # the grids of coarser cells that hold the larger Gaussians), the cells' Gaussian lists (and per
 # entry face), this frame's empty-space skips, voxel bricks (reference mode), the longest walk,
-# this frame's screen-tile lists (starts, ids, pixel masks), and per walk grid its object and
-# cell size in leaves.
+# this frame's screen-tile lists (starts, ids, pixel masks), per walk grid its object and cell
+# size in leaves, and the colour grids' voxel bricks on the same cells (reference mode; one
+# dummy brick when no object has a colour grid).
 Accel = namedtuple("Accel", "node_min node_dims node_off node_table node_cells cell_skip cell_start "
                             "cell_items face_start face_items cell_xyz bricks max_walk t_start "
-                            "t_items t_mask walk_obj walk_scale")
+                            "t_items t_mask walk_obj walk_scale cbricks")
 # Transfer functions (rows: the scene's, then each object's own), lights (lights.pack) and the
 # scalar settings (pack_settings).
 Transfer = namedtuple("Transfer", "lut par lights settings")
@@ -47,9 +52,11 @@ Output = namedtuple("Output", "rgba depth value segs")
 # covering leaves (paper, reference), the ray per object (index space) and its clip interval, the
 # walk's last cell per object, per-object sample sums, one sample and its sums, colour bounds,
 # the ray state, the sweep state, a block of tile candidates and their tests, surfaces' previous
-# sample per object, the world ray (origin, direction) and lit volumes' field gradient per object.
+# sample per object, the world ray (origin, direction), lit volumes' field gradient per object
+# and the colour grids' mixture per object.
 Scratch = namedtuple("Scratch", "iv_ta iv_tb iv_obj iv_cell srt bnd act_iv cov_obj cov_cell ro rd "
-                                "rclip lastc svals sact samp acc cb st qs fs cand blk sprev wr sgrad")
+                                "rclip lastc svals sact samp acc cb st qs fs cand blk sprev wr sgrad "
+                                "cvals")
 # Per-ray hits (particles, field), grown on demand: records, Gaussian ids, the entry queue (times,
 # keys, hits), the active set (field; particles: the members carried over), the members.
 Hits = namedtuple("Hits", "rec hid ev_t ev_k ev_h act mem")
@@ -82,17 +89,29 @@ def transfer_functions(scene, tf, resample):
     return [resample(t) for t in tfs], obj_tf
 
 
+def color_functions(scene, tfs, resample):
+    """Append the colour maps of the volumes coloured by a second grid (RenderObject.color_tf)
+    to the frame's transfer functions ``tfs``; returns each object's row (-1: none)."""
+    obj_ctf = np.full(len(scene.objects), -1, np.int32)
+    for k, o in enumerate(scene.objects):
+        if o.color_tf is not None and not o.is_level_set:
+            tfs.append(resample(o.color_tf))
+            obj_ctf[k] = len(tfs) - 1
+    return obj_ctf
+
+
 def pack_transfer(scene, tfs) -> Transfer:
     lut = np.ascontiguousarray(np.stack([t.lut.astype(np.float64) for t in tfs]))
     par = np.stack([t.packed() for t in tfs])
     return Transfer(lut, par, lights.pack(scene.lights), pack_settings(scene))
 
 
-def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref) -> Objects:
+def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=None) -> Objects:
     """ls rows: [0] 1 for a constant colour (rgb in [8:11]), else 0 and a colormap over the world
     coordinate [1:5] . (x, y, z, 1) of index points across [5:7]; [7] the voxel's world size.
     Level sets in paper mode are shells (the paper has no surfaces); only volumes are lit, and
-    not in paper mode. The shadow grids are the device's to fill (no_shadows until then)."""
+    not in paper mode. The shadow grids are the device's to fill (no_shadows until then).
+    obj_ctf: color_functions' rows (None: no object coloured by a second grid)."""
     objs = scene.objects
     n = len(objs)
     kind = np.array([(2 if o.surface and scene.mode != "paper" else 1) if o.is_level_set else 0
@@ -114,7 +133,13 @@ def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref) -> Objec
     lit = np.array([(LIT_SHADOWS if o.shadows else LIT)
                     if o.shading == "lit" and not o.is_level_set and scene.mode != "paper" else 0
                     for o in objs], np.int32)
-    return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n))
+    ctf = np.full(max(n, 1), -1, np.int32) if obj_ctf is None else np.asarray(obj_ctf, np.int32)
+    cbg = np.zeros(max(n, 1))
+    for k, o in enumerate(objs):
+        if ctf[k] >= 0:
+            cbg[k] = float(getattr(o.gaussians, "color_background", 0.0) or 0.0)
+    return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n), ctf,
+                   cbg)
 
 
 def no_shadows(n):
@@ -130,19 +155,22 @@ def empty_gaussians() -> Gaussians:
     z3 = np.zeros((1, 3))
     zc = np.zeros((1, 3), np.int64)
     return Gaussians(z3, z3, np.zeros(1), np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int32),
-                     np.zeros(1), np.zeros((1, 8)), np.zeros((1, 4), np.float32), zc, zc, NO_GRAD)
+                     np.zeros(1), np.zeros((1, 8)), np.zeros((1, 4), np.float32), zc, zc, np.zeros(1),
+                     NO_GRAD)
 
 
-def pack_gaussians(acc, w, col, rec, grad=None) -> Gaussians:
+def pack_gaussians(acc, w, col, rec, cw=None, grad=None) -> Gaussians:
     """The synced Gaussians with this frame's weights w and colours col; rec: the device's
-    (m, 8) test records, rewritten here (centre and 1/sigma kept from sync, column 6 = w); grad:
-    lit particles' (m, 4) gradients (see Gaussians), or None."""
+    (m, 8) test records, rewritten here (centre and 1/sigma kept from sync, column 6 = w); cw:
+    the colour grids' field weights (None: no object coloured by a second grid); grad: lit
+    particles' (m, 4) gradients (see Gaussians), or None."""
     if acc.g_mu.shape[0] == 0:
         return empty_gaussians()
     rec[:, 6] = w
     sph = acc.g_sph if acc.g_sph.shape[0] else np.zeros((1, 4), np.float32)
     return Gaussians(acc.g_mu, acc.g_inv, w, col, acc.g_val, acc.g_obj, acc.g_volfac, rec, sph,
-                     acc.g_clo, acc.g_chi, NO_GRAD if grad is None else grad)
+                     acc.g_clo, acc.g_chi, np.zeros(1) if cw is None else cw,
+                     NO_GRAD if grad is None else grad)
 
 
 def test_records(acc):
@@ -163,13 +191,16 @@ def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False) -> Accel:
         cell_start, cell_items = np.zeros(2, np.int64), np.zeros(1, np.int32)
         face_start, face_items = np.zeros(7, np.int64), np.zeros(1, np.int32)
         bricks, cell_xyz = acc.bricks, acc.cell_xyz
+        cbricks = getattr(acc, "cbricks", None)
     else:
         cell_start, cell_items = acc.cell_start, acc.cell_items
         face_start, face_items = acc.face_start, acc.face_items
         if cell_items.size == 0:  # no Gaussians, or no lists (the screen tiles need none)
             cell_items = face_items = np.zeros(1, np.int32)
-        bricks = np.zeros((1, 10, 10, 10), np.float32)
+        bricks = cbricks = np.zeros((1, 10, 10, 10), np.float32)
         cell_xyz = acc.cell_xyz if acc.cell_xyz.size else np.zeros((1, 3), np.int64)
+    if cbricks is None:
+        cbricks = np.zeros((1, 10, 10, 10), np.float32)
     return Accel(acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
                  cell_skip, cell_start, cell_items, face_start, face_items, cell_xyz, bricks,
-                 acc.max_walk, *tiles, acc.walk_obj, acc.walk_scale)
+                 acc.max_walk, *tiles, acc.walk_obj, acc.walk_scale, cbricks)

@@ -35,6 +35,11 @@ class RenderObject:
     lit_threshold; particles mode shades each chord once, at its closest approach to the
     Gaussian's centre; paper mode stays emission). ``shadows``: lit samples see each light
     through the medium (single scattering).
+    ``color_tf``: a volume coloured by a second grid of its file: the colour comes from this
+    transfer function's colours at the second grid's value, the opacity from ``tf`` (or the
+    scene's) at the object's own value. The second grid's values are ``gaussians.color_values``
+    (kernels.lod.second_grid, one per Gaussian) and, for the reference mode, ``color_grid`` (its
+    GridData).
     """
     gaussians: Any = None
     matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -47,6 +52,8 @@ class RenderObject:
     surface: bool = False
     shading: str = "emission"
     shadows: bool = False
+    color_tf: Optional[TransferFunction] = None
+    color_grid: Any = None
 
     def __post_init__(self):
         if self.shading not in SHADINGS:
@@ -55,6 +62,10 @@ class RenderObject:
         if self.is_level_set is None:
             gc = getattr(self.gaussians, "grid_class", None) or getattr(self.grid, "grid_class", None)
             self.is_level_set = gc == "level_set"
+        if self.color_tf is not None and self.gaussians is not None and \
+                getattr(self.gaussians, "color_values", None) is None:
+            raise ValueError(f"{self.name or 'object'}: a colour map over a second grid needs its "
+                             "values on the Gaussians (gaussians.color_values)")
 
 
 @dataclass
@@ -86,11 +97,12 @@ class RenderScene:
         keys with ``same_geometry``. The engine skips a re-sync when only the TF, camera or
         settings changed (replace the GaussianSet object when its arrays change)."""
         return (float(self.support_k),) + tuple(
-            (o.gaussians, o.grid, o.matrix_world.tobytes(), bool(o.is_level_set)) for o in self.objects)
+            (o.gaussians, o.grid, o.matrix_world.tobytes(), bool(o.is_level_set), o.color_grid)
+            for o in self.objects)
 
 
 def same_geometry(a, b) -> bool:
     if a is None or b is None or len(a) != len(b) or a[0] != b[0]:
         return False
-    return all(x[0] is y[0] and x[1] is y[1] and x[2] == y[2] and x[3] == y[3]
+    return all(x[0] is y[0] and x[1] is y[1] and x[2] == y[2] and x[3] == y[3] and x[4] is y[4]
                for x, y in zip(a[1:], b[1:]))

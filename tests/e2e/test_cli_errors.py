@@ -129,6 +129,9 @@ CASES = [
     (["convert", "{points}"], 1, ["points.vdb", "points: point"], True),
     (["convert", "{empty}", "--grid", "density"], 1, ["empty.vdb", "'density'", "empty grid"], True),
     (["convert", S, "--grid", "nosuch"], 1, ["'nosuch'", "density"], True),
+    (["convert", S, "--color-grid", "nosuch"], 1, ["colour grid 'nosuch'", "density"], True),
+    (["render", S, "--color-grid", "nosuch"], 1, ["colour grid 'nosuch'", "density"], True),
+    (["render", "{seq}", "--color-grid", "density"], 2, ["--color-grid", "sequence"], True),
     # info
     (["info", "{missing}"], 1, ["missing.vdb", "no such file"], True),
     (["info", "{dir}"], 1, ["directory"], True),
