@@ -163,3 +163,6 @@ def register_device():
 
     kdevice._REGISTRY["GPU"] = GPUDevice
     kdevice._USABLE["GPU"] = lambda: probe.probe()[0]
+
+
+register_device()

@@ -89,8 +89,9 @@ def _child():
         if line.startswith(MARK):
             _, verdict, name = (line.split(" ", 2) + ["", ""])[:3]
             return verdict == "ok", name.strip()
-    tail = (res.stderr.strip().splitlines() or ["no output"])[-1]
-    return False, f"no GPU context (the probe exited with {res.returncode}: {tail[:160]})"
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip() and "EGL Error" not in ln]
+    tail = lines[-1].strip() if lines else "no output"
+    return False, f"no GPU context: a probe process exited with {res.returncode} ({tail[:120]})"
 
 
 def reset():
