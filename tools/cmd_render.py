@@ -8,7 +8,8 @@ transform (colormaps come out exact), renders through the GAUSSVDB engine
 (``bpy.ops.render.render(write_still=True)``) and writes the image. Prints a summary, or with
 --json one JSON line: seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
 threads, lod, grid, colormap, out, warnings, device (the one that drew: GPU falls back to CPU
-with a warning where no GPU context can be had) and gpu (the GPU's name, or null). Warnings (a log scale over values <= 0) go to stderr.
+with a warning where no GPU context can be had) and gpu (the GPU's name, or null). Warnings
+(a log scale over values <= 0) go to stderr.
 Options and the grid are checked before Blender starts; a refusal or a failed render is one line
 on stderr (tools/cli_errors.py). A '#' pattern or --frames renders a sequence, one image per
 frame (tools/render_sequence.py).
