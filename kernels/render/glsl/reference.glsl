@@ -90,6 +90,8 @@ float sdf_crossing(int ob, float phi, float t, float p0, float h, int cid)
 
 int cov_obj[MAX_OBJ];
 int cov_cell[MAX_OBJ];
+ivec3 cov_base[MAX_OBJ]; /* the cover's brick in the atlas */
+vec3 cov_org[MAX_OBJ]; /* index point of its brick's voxel 0 */
 
 /* one piece [p0, p1] covered by ncov leaves; returns true when the ray ends */
 bool reference_piece(inout State st, float p0, float p1, int ncov)
@@ -98,6 +100,8 @@ bool reference_piece(inout State st, float p0, float p1, int ncov)
   for (int c = 0; c < ncov; c++) {
     int ob = cov_obj[c];
     dt = min(dt, obj_texel(ob, 3).z / length(g_rd[ob]));
+    cov_base[c] = brick_base(cov_cell[c]);
+    cov_org[c] = texel(cells, cov_cell[c]).xyz * 8.0 - 1.0;
   }
   int n = max(1, int(ceil((p1 - p0) / dt)));
   float h = (p1 - p0) / float(n);
@@ -110,8 +114,8 @@ bool reference_piece(inout State st, float p0, float p1, int ncov)
     for (int c = 0; c < ncov; c++) {
       int ob = cov_obj[c], cid = cov_cell[c];
       vec3 x = g_ro[ob] + t * g_rd[ob];
-      float val = trilinear(brick_base(cid), brick_xyz(cid, x));
-      int kind = int(obj_texel(ob, 3).x);
+      float val = trilinear(cov_base[c], clamp(x - cov_org[c], 0.0, 8.999999));
+      int kind = g_kind[ob];
       if (kind == 2) {
         float th = sdf_crossing(ob, val, t, p0, h, cid);
         if (th < bt) {
