@@ -5,8 +5,8 @@ rows and a readback; ``render_texture`` leaves the image on the GPU (the viewpor
 
 Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, inout State st)``,
 its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
-device does not draw (lit volumes; modes without an entry) are said in ``fallback(frame)``: lit
-frames go to the CPU device, missing modes raise.
+device does not draw (lit volumes in a mode without ``lit``; modes without an entry) are said in
+``fallback(frame)``: lit frames go to the CPU device, missing modes raise.
 """
 from __future__ import annotations
 
@@ -20,9 +20,10 @@ from ...kernels.render import device as kdevice
 from ...kernels.render import gpu_layout
 from . import compute, context
 
-# glsl: the mode's file; defines: extra #defines (WALK: common.glsl's leaf walk and its tables)
-ModeSpec = namedtuple("ModeSpec", "glsl defines")
-MODES = {"reference": ModeSpec("reference.glsl", ("WALK",))}
+# glsl: the mode's file; defines: extra #defines (WALK: common.glsl's leaf walk and its tables);
+# lit: whether it shades lit volumes (else such frames go to the CPU device)
+ModeSpec = namedtuple("ModeSpec", "glsl defines lit")
+MODES = {"reference": ModeSpec("reference.glsl", ("WALK",), True)}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 
 
@@ -59,7 +60,8 @@ class GPUDevice(kdevice.Device):
     @staticmethod
     def fallback(frame):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
-        if (np.asarray(frame.objects.lit) != 0).any():
+        spec = MODES.get(Mode(int(frame.mode)).name.lower())
+        if spec is not None and not spec.lit and (np.asarray(frame.objects.lit) != 0).any():
             return "lit volumes"
         return None
 

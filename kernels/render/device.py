@@ -275,10 +275,11 @@ class CPUDevice(Device):
 
     def _frame_key(self, mode, scene, camera, prep):
         """What a frame's state depends on besides the geometry (sync count): mode, tile switch,
-        camera, settings and the transfer-function tables."""
+        camera, settings, shading (lit, shadows: the shadow grids) and the transfer-function
+        tables."""
         _, objects, transfer = prep
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
-                  objects.clip, transfer.lights, transfer.settings)
+                  objects.clip, objects.lit, transfer.lights, transfer.settings)
         return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes()) + tuple(
             np.ascontiguousarray(a).tobytes() for a in tables)
 

@@ -29,7 +29,7 @@ LUT_TEXELS = 256  # the transfer functions' table size (transfer.LUT_SIZE), one 
 # Frame table (scalars): the packed camera (21), then the settings (packing.pack_settings).
 FR_CAM, FR_SET = 0, 24
 # Object table: OBJ_TEXELS texels per object (see object_rows), then its clip half-spaces.
-OBJ_TEXELS = 10
+OBJ_TEXELS = 12
 # {name: float32 (H, ROW_TEXELS, 4) table, (n, LUT_TEXELS, 4) LUTs or (Z, Y, X) atlas},
 # {name: int push constant}
 Tables = namedtuple("Tables", "textures ints")
@@ -93,7 +93,8 @@ def frame_table(frame):
 def object_rows(frame):
     """Per object OBJ_TEXELS texels: w2i rows 0-2; [kind, tf row, step, lit]; ls[0:4]; ls[4:8];
     [ls 8:11, clip count]; [node_min xyz, node_off]; [node_dims xyz, walk scale]; [reference point
-    xyz, 0]; then its clip half-spaces (one texel each). Returns (table, texels per object)."""
+    xyz, 0]; its shadow grid (packing.Objects.sh_grid: [origin xyz, spacing], [dims xyz, offset in
+    sh_tau]); then its clip half-spaces (one texel each). Returns (table, texels per object)."""
     o, a = frame.objects, frame.accel
     n = o.w2i.shape[0]
     if n > MAX_OBJ:
@@ -112,8 +113,10 @@ def object_rows(frame):
     rows[:, 8, 3] = a.walk_scale[:n]
     if o.ref.shape[0] >= n:
         rows[:, 9, :3] = o.ref[:n]
+    rows[:, 10:12] = np.asarray(o.sh_grid[:n]).reshape(n, 2, 4)
     rows[:, OBJ_TEXELS:] = o.clip
     _exact(rows[:, 7:9], "object node grids")
+    _exact(rows[:, 11], "shadow grid sizes")
     return fold_rows(rows.reshape(n, -1), "objects"), OBJ_TEXELS + nclip
 
 
@@ -129,10 +132,11 @@ def transfer_tables(frame):
 
 
 def common_tables(frame):
-    """What every mode reads per frame: frame (camera, settings), objects, transfer, lights."""
+    """What every mode reads per frame: frame (camera, settings), objects, transfer, lights and
+    the lit volumes' optical depths towards each light (sh_tau, scalars, light fastest)."""
     objs, per_obj = object_rows(frame)
     tex, n_lights = transfer_tables(frame)
-    tex.update(frame=frame_table(frame), objs=objs)
+    tex.update(frame=frame_table(frame), objs=objs, sh_tau=fold_scalars(frame.objects.sh_tau))
     return Tables(tex, {"n_obj": int(frame.objects.w2i.shape[0]), "obj_texels": per_obj,
                         "n_lights": int(n_lights)})
 

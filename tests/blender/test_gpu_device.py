@@ -1,6 +1,7 @@
 """The GPU device (compute shaders on Blender's gpu module, llvmpipe here) against the CPU device:
 the reference mode on a fog volume, a level-set surface and two overlapping objects (PSNR >= 50 dB,
-Depth and Value passes), clip planes, early termination and a background; F12 with write_still;
+Depth and Value passes), clip planes, early termination, a background and lit volumes with
+shadows; F12 with write_still;
 the viewport's draw code into an offscreen; and, with EGL made unavailable, the CPU rendering and
 the GPU choice falling back with a warning instead of aborting the process."""
 import json
@@ -109,12 +110,25 @@ def test_the_gpu_device_is_registered_where_the_probe_passes(gpu):
     assert get_device("GPU").name == "GPU"
 
 
-def test_lit_volumes_fall_back_to_the_cpu_device(gpu, cpu):
-    fog = grids()[0]
-    sc = RenderScene([RenderObject(grid=fog, shading="lit")], mode="reference")
-    got = gpu.render(sc, CAM, TF)
-    assert gpu.stats["fallback"] == "lit volumes"
-    np.testing.assert_array_equal(got["Combined"], cpu.render(sc, CAM, TF)["Combined"])
+@pytest.mark.parametrize("shadows", [False, True])
+def test_lit_volumes_match_the_cpu_device(gpu, cpu, shadows):
+    fog, _, box = grids()
+    lights = (Light("sun", (-1.0, 1.0, -0.3)), Light("point", (50.0, -20.0, 60.0), strength=3000.0))
+
+    def scene(shading, shadows):
+        return RenderScene([RenderObject(grid=fog, shading=shading, shadows=shadows),
+                            RenderObject(grid=box, shading=shading, shadows=shadows)],
+                           mode="reference", lights=lights)
+
+    # what the lights (or the shadows) change: emission (or lit without shadows)
+    before = cpu.render(scene("lit" if shadows else "emission", False), CAM, TF)["Combined"]
+    want = cpu.render(scene("lit", shadows), CAM, TF)["Combined"]
+    got = gpu.render(scene("lit", shadows), CAM, TF)["Combined"]
+    assert "fallback" not in gpu.stats
+    assert np.abs(want - before).max() > 0.02
+    db = psnr(got, want)
+    print(f"lit{' + shadows' if shadows else ''}: GPU vs CPU {db:.1f} dB")
+    assert db >= MIN_DB, f"PSNR {db:.1f} dB"
 
 
 def test_a_mode_not_on_the_gpu_yet_says_so(gpu):

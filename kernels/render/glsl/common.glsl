@@ -1,6 +1,6 @@
 /* GaussVDB GPU device: what every mode shares. Create-info dialect: the resources (samplers
  * frame, objs, tf_lut, tf_par, lights and the mode's; images out_rgba, out_dv; push constants
- * row0, col0, nrows, ncols, n_obj, obj_texels, n_lights and the mode's) are declared by the glue
+ * row0, col0, nrows, ncols, n_obj, obj_texels, n_lights and the mode's; sh_tau) are declared by the glue
  * (gaussvdb_addon/gpu/compute.py). Tables: kernels/render/gpu_layout.py. Float32 throughout:
  * the CPU device's float64 steps, in the same order. */
 
@@ -14,7 +14,8 @@
 #define SET_TMIN 0
 #define SET_BG 3
 #define SET_SHADING 9
-#define OBJ_TEXELS 10
+#define OBJ_TEXELS 12
+#define SET_LIT_THRESHOLD 13
 
 /* -- table fetches ------------------------------------------------------------------------- */
 vec4 texel(sampler2D t, int e)
@@ -56,6 +57,7 @@ vec2 g_rclip[MAX_OBJ];
 int g_kind[MAX_OBJ];
 int g_tfi[MAX_OBJ];
 vec4 g_par[MAX_OBJ];
+int g_lit[MAX_OBJ]; /* 0 emission, 1 lit, 2 lit with shadows (packing.LIT, LIT_SHADOWS) */
 
 struct Ray {
   vec3 o, d; /* world origin, unit direction */
@@ -124,6 +126,7 @@ void object_rays(Ray r)
     vec4 o3 = obj_texel(ob, 3);
     g_kind[ob] = int(o3.x);
     g_tfi[ob] = int(o3.y);
+    g_lit[ob] = int(o3.w);
     g_par[ob] = texel(tf_par, g_tfi[ob]);
   }
 }
@@ -401,6 +404,98 @@ void surface_hit(inout State st, int ob, float t, vec3 g, vec3 p)
   }
 }
 
+/* light k seen from world point p on a ray of direction d: unit direction towards it and its
+ * irradiance (_cpu_surface.light_at: points fall off as 1 / r^2, the headlight shines along d) */
+bool light_at(int k, vec3 p, vec3 d, out vec3 l, out vec3 e)
+{
+  vec4 a = row_texel(lights, k, 2, 0), b = row_texel(lights, k, 2, 1); /* kind xyz, rgb */
+  l = -d;
+  e = b.xyz;
+  if (a.x == 1.0) {
+    vec3 dl = a.yzw - p;
+    float d2 = dot(dl, dl);
+    if (!(d2 > 0.0)) {
+      return false;
+    }
+    l = dl / sqrt(d2);
+    e /= d2;
+  }
+  else if (a.x == 0.0) {
+    l = -a.yzw;
+  }
+  return true;
+}
+
+/* optical depth towards light li at index point x from object ob's shadow grid, trilinear,
+ * clamped (_cpu_lit.shadow_tau) */
+float shadow_tau(int ob, int li, vec3 x)
+{
+  vec4 g0 = obj_texel(ob, 10), g1 = obj_texel(ob, 11);
+  ivec3 nd = ivec3(g1.xyz);
+  int off = int(g1.w);
+  vec3 u = clamp((x - g0.xyz) / g0.w, vec3(0.0), vec3(nd) - 1.0);
+  ivec3 i0 = min(ivec3(u), nd - 2);
+  vec3 a = u - vec3(i0);
+  float v = 0.0;
+  for (int di = 0; di < 2; di++) {
+    for (int dj = 0; dj < 2; dj++) {
+      for (int dk = 0; dk < 2; dk++) {
+        float w = (di == 1 ? a.x : 1.0 - a.x) * (dj == 1 ? a.y : 1.0 - a.y) * (dk == 1 ? a.z : 1.0 - a.z);
+        int e = off + (((i0.x + di) * nd.y + i0.y + dj) * nd.z + i0.z + dk) * n_lights + li;
+        v += w * scalar(sh_tau, e);
+      }
+    }
+  }
+  return v;
+}
+
+/* Blinn-Phong on a lit volume sample of object ob (_cpu_lit.shade_sample): g the field's
+ * index-space gradient at index point x, t the sample's distance along the world ray; replaces
+ * the emission colour c unless the gradient is below the threshold */
+vec3 shade_sample(int ob, vec3 c, vec3 g, vec3 x, Ray r, float t)
+{
+  vec4 par = g_par[ob];
+  float rng = par.y - par.x;
+  if (!(rng > 0.0)) {
+    rng = 1.0;
+  }
+  if (!(length(g) > fr(FR_SET + SET_LIT_THRESHOLD) * rng)) {
+    return c;
+  }
+  vec4 m0 = obj_texel(ob, 0), m1 = obj_texel(ob, 1), m2 = obj_texel(ob, 2);
+  vec3 n = -(g.x * m0.xyz + g.y * m1.xyz + g.z * m2.xyz);
+  float nn = length(n);
+  if (!(nn > 0.0)) {
+    return c;
+  }
+  n /= nn;
+  vec3 p = r.o + t * r.d;
+  float ka = fr(FR_SET + SET_SHADING), kd = fr(FR_SET + SET_SHADING + 1);
+  float ks = fr(FR_SET + SET_SHADING + 2), sh = fr(FR_SET + SET_SHADING + 3);
+  vec3 col = ka * c;
+  for (int k = 0; k < n_lights; k++) {
+    vec3 l, e;
+    if (!light_at(k, p, r.d, l, e)) {
+      continue;
+    }
+    float ndl = dot(n, l);
+    if (ndl <= 0.0) {
+      continue;
+    }
+    if (g_lit[ob] == 2) {
+      e *= exp(-shadow_tau(ob, k, x));
+    }
+    vec3 hv = l - r.d;
+    float hn = length(hv);
+    float spec = 0.0;
+    if (hn > 0.0 && ks > 0.0) {
+      spec = ks * pow(max(dot(n, hv), 0.0) / hn, sh);
+    }
+    col += e * (kd * ndl * c + spec);
+  }
+  return col;
+}
+
 /* Blinn-Phong at the hit (_cpu_surface.shade_hit) */
 void shade_hit(inout State st, Ray r)
 {
@@ -417,19 +512,9 @@ void shade_hit(inout State st, Ray r)
   float ks = fr(FR_SET + SET_SHADING + 2), sh = fr(FR_SET + SET_SHADING + 3);
   vec3 c = ka * st.hit_c;
   for (int k = 0; k < n_lights; k++) {
-    vec4 a = row_texel(lights, k, 2, 0), b = row_texel(lights, k, 2, 1); /* kind xyz, rgb */
-    vec3 l = -r.d, e = b.xyz;
-    if (a.x == 1.0) { /* point: 1 / r^2 */
-      vec3 dl = a.yzw - p;
-      float d2 = dot(dl, dl);
-      if (!(d2 > 0.0)) {
-        continue;
-      }
-      l = dl / sqrt(d2);
-      e /= d2;
-    }
-    else if (a.x == 0.0) { /* sun */
-      l = -a.yzw;
+    vec3 l, e;
+    if (!light_at(k, p, r.d, l, e)) {
+      continue;
     }
     float ndl = dot(n, l);
     if (ndl <= 0.0) {

@@ -1,7 +1,8 @@
 /* reference mode (_cpu_pieces.reference_piece): the leaf walk of every object, pieces between
  * the merged cell boundaries, trilinear voxel samples at midpoints from the brick atlas, exact
  * exponential compositing; objects overlapping in a piece add extinction; level-set surfaces:
- * first sign change + bisection, shaded in write_output. Lit volumes: the CPU device draws them.
+ * first sign change + bisection, shaded in write_output. Lit volumes: Blinn-Phong on the voxels'
+ * gradient (common.glsl's shade_sample, shadows from the frame's shadow grids).
  * Tables: atlas (3-D), cells, node_table, node_cells, cell_skip; atlas_sx, atlas_sy. */
 
 ivec3 brick_base(int cid)
@@ -109,7 +110,7 @@ void piece_start(float p0, float p1, int ncov, out int n, out float h)
 }
 
 /* the piece's sample at t (midpoint of a step h); returns true when the ray ends */
-bool reference_sample(inout State st, float t, float p0, float h, int ncov)
+bool reference_sample(inout State st, Ray r, float t, float p0, float h, int ncov)
 {
   float sig = 0.0, vs = 0.0, vw = 0.0;
   vec3 col = vec3(0.0);
@@ -134,6 +135,9 @@ bool reference_sample(inout State st, float t, float p0, float h, int ncov)
     float s, v;
     vec3 cc;
     sample_color(ob, kind, val, x, s, cc, v);
+    if (g_lit[ob] != 0 && s > 0.0) {
+      cc = shade_sample(ob, cc, trilinear_grad(cov_base[c], clamp(x - cov_org[c], 0.0, 8.999999)), x, r, t);
+    }
     if (s > 0.0) {
       sig += s;
       col += s * cc;
@@ -218,7 +222,7 @@ void trace_mode(Ray r, inout State st)
       piece_start(p, q, ncov, n, h);
       i = 0;
     }
-    if (reference_sample(st, p + (float(i) + 0.5) * h, p, h, ncov)) {
+    if (reference_sample(st, r, p + (float(i) + 0.5) * h, p, h, ncov)) {
       return;
     }
     i++;
