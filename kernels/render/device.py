@@ -3,8 +3,9 @@ uploads/builds acceleration data once per scene change; ``begin_frame(scene, cam
 the per-frame set-up (weights, colours, empty-space skips, screen-tile lists) once per frame;
 ``render(...)`` draws the whole frame or a region of it (a band of rows, a render border) and
 reuses the frame's set-up while camera, transfer function and settings are unchanged;
-``end_frame()`` frees it. ``CPUDevice`` (numba, parallel over rows, nogil, cached kernels) ships
-now; a GPU device implements the same methods and registers itself in ``_REGISTRY``.
+``end_frame()`` frees it. ``CPUDevice``: numba, parallel over rows, nogil, cached kernels. The GPU
+device (gaussvdb_addon/gpu/device.py: compute shaders on Blender's gpu module) implements the same
+methods over a CPUDevice's frame set-up and registers itself in ``_REGISTRY`` and ``_USABLE``.
 
 Passes: 'Combined' float32 (H, W, 4), linear, premultiplied alpha, row 0 = bottom;
 'Depth' float32 (H, W): world distance along the ray where the accumulated opacity reaches 0.5
@@ -311,10 +312,12 @@ class CPUDevice(Device):
 
     def _frame_key(self, mode, scene, camera, prep):
         """What a frame's state depends on besides the geometry (sync count): mode, tile switch,
-        camera, settings and the transfer-function tables."""
+        camera, settings, shading (lit, shadows: the shadow grids) and the transfer-function
+        tables."""
         _, objects, transfer = prep
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
-                  objects.clip, transfer.lights, transfer.settings, objects.ctf, objects.cbg)
+                  objects.clip, objects.lit, transfer.lights, transfer.settings, objects.ctf,
+                  objects.cbg)
         return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes()) + tuple(
             np.ascontiguousarray(a).tobytes() for a in tables)
 
@@ -503,11 +506,13 @@ class _Frame:
 
 
 _REGISTRY = {"CPU": CPUDevice}
+_USABLE = {}  # name -> callable: whether this machine can run that device (the GPU's probe)
 
 
 def available_devices():
-    """Names of the devices this build can use (a GPU device adds itself to _REGISTRY)."""
-    return list(_REGISTRY)
+    """Names of the devices this build can use here (a GPU device adds itself to _REGISTRY and
+    its check to _USABLE)."""
+    return [n for n in _REGISTRY if n not in _USABLE or _USABLE[n]()]
 
 
 def get_device(name="CPU", **kw) -> Device:

@@ -255,3 +255,19 @@ def test_shadows_field_gaussian():
     tau0 = dens * np.sqrt(2 * np.pi) * 10.0 * 0.9973  # the support cuts at 3 sigma
     r = shadow_ratio("field", recv, blk, dens, cam)
     assert r.min() > np.exp(-tau0) * 0.98 and r.max() < np.exp(-tau0 * np.exp(-25 / 200)) * 1.02
+
+
+def test_switching_shading_on_one_device_redraws_the_frame():
+    """Lit and shadows are part of the frame's state: the same device, camera and geometry with
+    the shading switched draws the new shading (not the kept frame)."""
+    v = np.zeros((24, 24, 24))
+    v[4:20, 4:20, 4:20] = 0.8
+    grid = grid_from_dense(v, active=v > 0)
+    cam = Camera.frame_box([0] * 3, [24] * 3, 24, 24)
+    tf = TransferFunction.from_colormap("viridis", 0, 1, density=0.5)
+    dev = CPUDevice()
+    images = [dev.render(RenderScene([RenderObject(grid=grid, shading=s, shadows=sh)], mode="reference",
+                                     lights=(SUN,)), cam, tf)["Combined"]
+              for s, sh in (("emission", False), ("lit", False), ("lit", True))]
+    assert np.abs(images[1] - images[0]).max() > 0.01
+    assert np.abs(images[2] - images[1]).max() > 0.01
