@@ -1,0 +1,120 @@
+"""The Gaussian modes' GPU tables (particles, field, paper): the CPU frame's numpy groups turned
+into float32 arrays ready for RGBA32F textures (plain numpy, no bpy/gpu).
+
+Every table is folded into a 2-D RGBA texture ROW_TEXELS texels wide (``fold``): a table of rows
+of c columns puts row i in texels i * ceil(c / 4) ...; a 1-D table puts element k in texel k // 4,
+channel k % 4 (``flat``). Integers travel as exact floats, so each must stay below 2^24
+(``check_exact`` says where one does not; the device then draws that frame on the CPU).
+
+Tables (name: rows x columns, what):
+- g_rec (m x 8): centre (3), 1/sigma (3), this frame's weight w, and column 7: the tile lists'
+  entry bound (particles, field) or w x volfac (paper's per-step extinction factor).
+- g_aux (m x 8): colour (3), value (0 when NaN), value weight (1, or 0 when NaN), object.
+- t_start (flat, tiles + 1): each screen tile's first entry.
+- t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
+  20 bits (bit b of the mask: piece b // 22, bit b % 22).
+- Field surfaces (object kind 2) also get the leaf lookup the normal needs (mixture_normal):
+  n_grid (walk grids x 8: node_min (3), node_dims (3), node_off), n_table (flat), n_cells (flat,
+  4096 per node), c_start (flat), c_items (flat).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+ROW_TEXELS = 4096
+EXACT = 1 << 24  # floats hold every integer below this exactly
+MASK_BITS = 22
+
+
+def fold(table) -> np.ndarray:
+    """(rows, c) -> (texture rows, ROW_TEXELS, 4) float32: row i from texel i * ceil(c / 4)."""
+    a = np.asarray(table, np.float32)
+    a = a.reshape(a.shape[0], -1) if a.ndim != 1 else a.reshape(-1, 1)
+    per = -(-a.shape[1] // 4)
+    body = np.zeros((a.shape[0], per * 4), np.float32)
+    body[:, :a.shape[1]] = a
+    return _pad(body.reshape(-1, 4))
+
+
+def flat(values) -> np.ndarray:
+    """1-D -> (texture rows, ROW_TEXELS, 4) float32: element k in texel k // 4, channel k % 4."""
+    a = np.asarray(values, np.float32).ravel()
+    texels = max(1, -(-a.size // 4))
+    body = np.zeros(texels * 4, np.float32)
+    body[:a.size] = a
+    return _pad(body.reshape(-1, 4))
+
+
+def _pad(texels) -> np.ndarray:
+    n = max(1, texels.shape[0])
+    rows = -(-n // ROW_TEXELS)
+    out = np.zeros((rows * ROW_TEXELS, 4), np.float32)
+    out[:texels.shape[0]] = texels
+    return out.reshape(rows, ROW_TEXELS, 4)
+
+
+def mask_pieces(masks) -> np.ndarray:
+    """(n,) int64 pixel masks -> (n, 3) exact floats of 22, 22 and 20 bits."""
+    u = np.asarray(masks).astype(np.int64).view(np.uint64)
+    lo = np.uint64((1 << MASK_BITS) - 1)
+    return np.stack([u & lo, (u >> np.uint64(MASK_BITS)) & lo, u >> np.uint64(2 * MASK_BITS)],
+                    -1).astype(np.float64)
+
+
+def check_exact(**arrays):
+    """None, or the name of the first integer array (or count) that floats cannot hold exactly."""
+    for name, a in arrays.items():
+        a = np.asarray(a)
+        if a.size and (int(a.max()) >= EXACT or int(a.min()) <= -EXACT):
+            return name
+    return None
+
+
+def gauss_tables(mode, gauss) -> dict:
+    """g_rec and g_aux for a frame's Gaussians (packing.Gaussians); paper: column 7 = w x volfac."""
+    from .scene import Mode
+
+    rec = np.array(gauss.rec, np.float64)
+    if mode == Mode.PAPER:
+        rec[:, 7] = gauss.w * gauss.volfac
+    val = np.asarray(gauss.val, np.float64)
+    ok = ~np.isnan(val)
+    aux = np.zeros((rec.shape[0], 8))
+    aux[:, 0:3] = gauss.col
+    aux[:, 3] = np.where(ok, val, 0.0)
+    aux[:, 4] = ok
+    aux[:, 5] = gauss.obj
+    return {"g_rec": fold(rec), "g_aux": fold(aux)}
+
+
+def tile_tables(start, items, masks) -> dict:
+    """t_start and t_ent from the frame's screen-tile lists (_cpu_tiles)."""
+    ent = np.zeros((max(1, len(items)), 4))
+    ent[:len(items), 0] = items
+    ent[:len(items), 1:] = mask_pieces(masks)
+    return {"t_start": flat(start), "t_ent": fold(ent)}
+
+
+def normal_tables(accel) -> dict:
+    """The leaf lookup of field surfaces' normals (see module doc)."""
+    nw = accel.walk_obj.shape[0]
+    grid = np.zeros((nw, 8))
+    grid[:, 0:3] = accel.node_min[:nw]
+    grid[:, 3:6] = accel.node_dims[:nw]
+    grid[:, 6] = accel.node_off[:nw]
+    return {"n_grid": fold(grid), "n_table": flat(accel.node_table), "n_cells": flat(accel.node_cells),
+            "c_start": flat(accel.cell_start), "c_items": flat(accel.cell_items)}
+
+
+def unsupported(frame) -> str | None:
+    """Why the GPU's Gaussian modes cannot draw this frame exactly (the device then draws it on
+    the CPU), or None: lit volumes, no screen-tile lists (switched off or too many entries), or
+    an index past the floats' exact range."""
+    from .packing import NO_TILES
+
+    if (np.asarray(frame.objects.lit) != 0).any():
+        return "lit volumes"
+    a = frame.accel
+    if a.t_start.shape[0] <= NO_TILES[0].shape[0]:
+        return "no screen-tile lists"
+    return check_exact(tile_entries=a.t_start[-1:], gaussians=[frame.gauss.rec.shape[0]])
