@@ -6,7 +6,7 @@ import bpy
 
 from .. import operators
 from ..kernels import cachedir, openvdb_binding
-from .engine import render_engine
+from .engine import gpu_choice, render_engine
 from .io import source_path, versioning
 from .properties import lod_figures, object_settings, render_settings
 from .ui import object_panel, presets, render_panel, transfer_ui
@@ -14,7 +14,7 @@ from .ui import object_panel, presets, render_panel, transfer_ui
 # Properties first (others point at them), panels last (they draw the rest).
 # versioning: the load handler that upgrades files written by older versions.
 MODULES = (lod_figures, object_settings, source_path, render_settings, presets, operators,
-           render_engine, render_panel, object_panel, transfer_ui, versioning)
+           gpu_choice, render_engine, render_panel, object_panel, transfer_ui, versioning)
 
 
 def bundled_openvdb():
@@ -35,6 +35,8 @@ def register():
         except (ValueError, OSError):  # not loaded as an extension: the default rule applies
             pass
     openvdb_binding.set_loader(bundled_openvdb)
+    # a GPU context only where one can be had (gpu_choice): asking for one without GL aborts Blender
+    render_engine.GaussVDBRenderEngine.bl_use_gpu_context = gpu_choice.initial_gpu_context()
     for module in MODULES:
         for cls in module.CLASSES:
             bpy.utils.register_class(cls)

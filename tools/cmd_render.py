@@ -1,13 +1,15 @@
 """`./gaussvdb render FILE.vdb|'DIR/name_####.vdb' [--frames A-B] [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
 [--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI]
-[--level-set surface|shell] [--shading emission|lit] [--shadows] [--json]`
+[--level-set surface|shell] [--shading emission|lit] [--shadows] [--device cpu|gpu] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
 transform (colormaps come out exact), renders through the GAUSSVDB engine
 (``bpy.ops.render.render(write_still=True)``) and writes the image. Prints a summary, or with
 --json one JSON line: seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
-threads, lod, grid, colormap, out, warnings. Warnings (a log scale over values <= 0) go to stderr.
+threads, lod, grid, colormap, out, warnings, device (the one that drew: GPU falls back to CPU
+with a warning where no GPU context can be had) and gpu (the GPU's name, or null). Warnings
+(a log scale over values <= 0) go to stderr.
 Options and the grid are checked before Blender starts; a refusal or a failed render is one line
 on stderr (tools/cli_errors.py). A '#' pattern or --frames renders a sequence, one image per
 frame (tools/render_sequence.py).
@@ -69,6 +71,9 @@ def parse(argv):
     p.add_argument("--shadows", action="store_true",
                    help="lit volumes: a sun from above lights them through the medium (the "
                         "headlight casts no shadows)")
+    p.add_argument("--device", default="cpu", choices=("cpu", "gpu"),
+                   help="render device: the CPU, or compute shaders on the GPU (reference mode; "
+                        "the CPU draws what the GPU does not)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
     a = p.parse_args(argv)
     a.width, a.height = a.size
@@ -123,6 +128,7 @@ def build_scene(bpy, objs, args, box=None):
     r.resolution_x, r.resolution_y, r.resolution_percentage = args.width, args.height, 100
     r.film_transparent = bool(args.transparent)
     s = scene.gaussvdb
+    s.device = getattr(args, "device", "cpu").upper()
     s.mode = args.mode.upper()
     s.colormap = args.colormap
     s.show_legend = bool(args.legend)
@@ -241,7 +247,8 @@ def main(argv) -> int:
     else:
         print(f"{stats['out']}: {stats['width']}x{stats['height']} {stats['mode']}, "
               f"{stats['gaussians']:,} Gaussians ({stats['lod']}), sync {stats['seconds_sync']:.2f} s, "
-              f"render {stats['seconds_render']:.2f} s on {stats['threads']} threads")
+              f"render {stats['seconds_render']:.2f} s on "
+              f"{stats['gpu'] if stats.get('gpu') else str(stats['threads']) + ' threads'}")
     return 0
 
 

@@ -12,6 +12,7 @@ with the message and ``blender -b`` exits non-zero.
 """
 
 import math
+import sys
 import time
 import traceback
 
@@ -114,22 +115,41 @@ def register_passes(engine, scene, renderlayer):
         engine.register_pass(scene, renderlayer, name, ch, chid, kind)
 
 
-def new_device():
-    """A CPU device (its kernels cached where registration pointed kernels.cachedir)."""
+def new_device(name="CPU"):
+    """A CPU (or GPU) device (its kernels cached where registration pointed kernels.cachedir)."""
     from ...kernels.render import get_device as kernel_device
 
-    return kernel_device("CPU")
+    if name == "GPU":
+        from ..gpu import device  # noqa: F401  (registers the GPU device)
+    return kernel_device(name)
 
 
-def get_device():
+def get_device(name="CPU"):
     """The process-wide device of final renders (acceleration reused across frames); its kernels
     are loaded when it is made (LOAD_SECONDS), apart from any frame's timings."""
-    dev = _DEVICE.get("CPU")
+    dev = _DEVICE.get(name)
     if dev is None:
-        dev = new_device()
+        dev = new_device(name)
         LOAD_SECONDS[0] = dev.load_kernels()
-        _DEVICE["CPU"] = dev
+        _DEVICE[name] = dev
     return dev
+
+
+def chosen_device(engine, scene):
+    """The device name this render uses: the scene's choice, or CPU with a one-line warning
+    when the GPU device cannot run here (gpu_choice)."""
+    if scene.gaussvdb.device != "GPU":
+        return "CPU"
+    from . import gpu_choice
+
+    ok, why = gpu_choice.usable()
+    if ok:
+        return "GPU"
+    msg = f"GaussVDB: the GPU device is not available ({why}); rendering on the CPU"
+    if not bpy.app.background:  # (in background mode the report prints itself)
+        print(msg, file=sys.stderr)
+    engine.report({"WARNING"}, msg)
+    return "CPU"
 
 
 def announce_compile(engine):
@@ -156,13 +176,24 @@ def render(engine, depsgraph):
 
 
 def _render(engine, depsgraph):
+    name = chosen_device(engine, depsgraph.scene)
+    if name == "GPU":
+        from ..gpu import context
+
+        with context.inside():  # this render() has the engine's GPU context
+            _render_on(engine, depsgraph, name)
+    else:
+        _render_on(engine, depsgraph, name)
+
+
+def _render_on(engine, depsgraph, name):
     from . import legend_overlay, scene_sync
 
-    fresh = "CPU" not in _DEVICE
+    fresh = name not in _DEVICE
     if fresh:  # the device loads (on first use compiles) every render kernel when it is made
         engine.update_stats("", "GaussVDB | loading the kernels")
         announce_compile(engine)
-    device = get_device()
+    device = get_device(name)
     t_compile = LOAD_SECONDS[0] if fresh else 0.0
     t0 = time.perf_counter()
     scene = depsgraph.scene
@@ -199,7 +230,9 @@ def _render(engine, depsgraph):
                  mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),
                  threads=device.stats.get("threads"), cancelled=cancelled,
                  value_range=[tf.vmin, tf.vmax], warnings=list(sync.warnings),
-                 errors=list(sync.errors), frame=scene.frame_current, legend=legend_drawn)
+                 errors=list(sync.errors), frame=scene.frame_current, legend=legend_drawn,
+                 device=device.name, gpu=getattr(device, "renderer", None),
+                 fallback=device.stats.get("fallback"))
     LAST_STATS.clear()
     LAST_STATS.update(stats)
     engine.update_stats("", f"GaussVDB | {sync.gaussians:,} Gaussians | sync {t_sync:.2f} s | "

@@ -1,5 +1,7 @@
 """Rendered viewport shading for GAUSSVDB: a worker thread refines the image progressively.
 
+With the GPU device (Scene.gaussvdb.device) there is no worker: view_draw dispatches the compute
+shader into a texture (again only when the view or scene changed) and draws it into the region.
 ``view_update`` feeds depsgraph updates to a SceneSync (no update: nothing happens);
 ``view_draw`` turns the region's matrices into a kernel Camera, restarts the worker when the
 view or scene changed, and draws the latest image with a few ``gpu`` calls. The worker renders
@@ -66,6 +68,21 @@ def scaled_camera(cam, factor):
     w = max(1, int(math.ceil(cam.width / factor)))
     h = max(1, int(math.ceil(cam.height / factor)))
     return dataclasses.replace(cam, width=w, height=h)  # clip range and pixel aspect kept
+
+
+def draw_texture(tex, width, height, engine=None, scene=None):
+    """A premultiplied image texture over the region (width x height), through the engine's
+    display-space shader when given (view_draw), else as it is."""
+    import gpu
+    from gpu_extras.presets import draw_texture_2d
+
+    gpu.state.blend_set("ALPHA_PREMULT")
+    if engine is not None:
+        engine.bind_display_space_shader(scene)
+    draw_texture_2d(tex, (0, 0), width, height)
+    if engine is not None:
+        engine.unbind_display_space_shader()
+    gpu.state.blend_set("NONE")
 
 
 # -- scheduling -----------------------------------------------------------------------------------
@@ -136,6 +153,7 @@ class ViewportSession:
         self.tf = None  # the scene transfer function of the current job (the legend shows it)
         self.legend_cache = {}
         self.frame = None
+        self.gpu = None  # (GPUDevice, drawn key, its texture) with the GPU device
 
     # -- called from Blender's main thread ---------------------------------------------------
     def update(self, context, depsgraph):
@@ -168,6 +186,8 @@ class ViewportSession:
         region, rd = context.region, context.region_data
         cam = camera_from_region(region, rd)
         key = (camera_key(cam), self.scene_version)
+        if depsgraph.scene.gaussvdb.device == "GPU" and self._draw_gpu(depsgraph, cam, key, region):
+            return
         if key != self.cam_key:
             self.cam_key = key
             if self.sync.scene is None:
@@ -201,16 +221,49 @@ class ViewportSession:
 
     def _draw_image(self, scene, rgba, width, height):
         import gpu
-        from gpu_extras.presets import draw_texture_2d
 
         h, w = rgba.shape[:2]
         buf = gpu.types.Buffer("FLOAT", w * h * 4, np.minimum(rgba, 65000.0).ravel())
         tex = gpu.types.GPUTexture((w, h), format="RGBA16F", data=buf)
-        gpu.state.blend_set("ALPHA_PREMULT")
-        self.engine.bind_display_space_shader(scene)
-        draw_texture_2d(tex, (0, 0), width, height)
-        self.engine.unbind_display_space_shader()
-        gpu.state.blend_set("NONE")
+        draw_texture(tex, width, height, self.engine, scene)
+
+    def _draw_gpu(self, depsgraph, cam, key, region):
+        """The GPU device's image, dispatched when the view or scene changed, drawn into the
+        region; False when the frame is the CPU's (the GPU cannot run here, or falls back)."""
+        from ..gpu import context, probe
+
+        if not probe.probe()[0]:
+            return False
+        if self.sync.scene is None:
+            self.sync.sync(depsgraph)
+        if self.gpu is None:
+            from .final_render import new_device
+
+            self.gpu = [new_device("GPU"), None, None]
+        dev = self.gpu[0]
+        if self.gpu[1] != key:
+            self.tf = self.sync.transfer_function(depsgraph.scene.gaussvdb)
+            try:
+                with context.inside():  # view_draw has the window's GPU context
+                    tex = dev.render_texture(self.sync.scene, cam, self.tf)
+            except Exception as err:  # noqa: BLE001  (said in the header, as the worker's)
+                self.error = str(err) or type(err).__name__
+                tex = None
+            if tex is None:
+                return self.error is not None
+            self.gpu[1:] = [key, tex]
+            self.error = None
+        if self.error:
+            self.engine.update_stats("", f"GaussVDB error: {self.error}")
+            return True
+        scene = depsgraph.scene
+        draw_texture(self.gpu[2], region.width, region.height, self.engine, scene)
+        if scene.gaussvdb.show_legend and self.tf is not None:
+            from . import legend_overlay
+
+            legend_overlay.draw_viewport(scene.gaussvdb, self.sync, self.tf, region.width,
+                                         region.height, self.legend_cache, self.engine, scene)
+        return True
 
     def stop(self):
         with self.lock:

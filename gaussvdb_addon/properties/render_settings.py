@@ -30,7 +30,21 @@ def _value_pass_changed(self, context):
     scene.update_tag()
 
 
+def _device_changed(self, context):
+    from ..engine import gpu_choice
+
+    gpu_choice.device_changed(self, context)
+
+
 class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
+    device: EnumProperty(name="Device", default="CPU", update=_device_changed,
+                         description="Device to render with",
+                         items=(("CPU", "CPU", "Render on the CPU (numba kernels): every mode, "
+                                               "lit volumes and shadows"),
+                                ("GPU", "GPU Compute", "Render with compute shaders on Blender's GPU "
+                                                       "module (OpenGL, Vulkan, Metal); falls back "
+                                                       "to the CPU where no GPU context can be had "
+                                                       "or for what it does not draw")))
     # the transfer function (colormap, ramp, range, log scale, density): transfer_settings
     mode: EnumProperty(name="Mode", items=MODES, default=mode_names.DEFAULT.upper(), update=_tag,
                        description="How the Gaussians are turned into an image")

@@ -27,6 +27,7 @@ class GAUSSVDB_PT_render(_Base, bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
+        layout.prop(s, "device")  # like Cycles' Device
         layout.prop(s, "mode")
         col = layout.column(align=True)
         col.prop(s, "early_termination")

@@ -458,11 +458,13 @@ class _Frame:
 
 
 _REGISTRY = {"CPU": CPUDevice}
+_USABLE = {}  # name -> callable: whether this machine can run that device (the GPU's probe)
 
 
 def available_devices():
-    """Names of the devices this build can use (a GPU device adds itself to _REGISTRY)."""
-    return list(_REGISTRY)
+    """Names of the devices this build can use here (a GPU device adds itself to _REGISTRY and
+    its check to _USABLE)."""
+    return [n for n in _REGISTRY if n not in _USABLE or _USABLE[n]()]
 
 
 def get_device(name="CPU", **kw) -> Device:

@@ -1,0 +1,70 @@
+"""Which device a render uses: Scene.gaussvdb.device (CPU / GPU). The engine asks Blender for a
+GPU context (bl_use_gpu_context, read when the class registers) only where the probe says one can
+be had: always in the UI; in background mode (blender -b, the bpy module) once the GPU device is
+chosen (the setting's update, a file loaded with it, the CLI) and the probe passed, by
+registering the engine class again with the flag on. A machine without EGL/GL never asks, so
+Blender never aborts there; the GPU choice then falls back to the CPU device with a warning."""
+
+import bpy
+from bpy.app.handlers import persistent
+
+from ..gpu import probe
+
+
+def engine_class():
+    from .render_engine import GaussVDBRenderEngine
+
+    return GaussVDBRenderEngine
+
+
+def initial_gpu_context():
+    """The engine's flag at registration: on in the UI (it draws with a GPU), off in background
+    mode until the GPU device is chosen and the probe passes (ensure)."""
+    return not bpy.app.background
+
+
+def ensure():
+    """The GPU device is wanted: (ok, GPU name or why not). Turns the engine's GPU context on
+    when it is off and the probe passes."""
+    ok, text = probe.probe()
+    cls = engine_class()
+    if ok and not cls.bl_use_gpu_context and getattr(cls, "is_registered", False):
+        bpy.utils.unregister_class(cls)
+        cls.bl_use_gpu_context = True
+        bpy.utils.register_class(cls)
+    return ok, text
+
+
+def usable():
+    """(ok, text): whether a render now can run the GPU device (probe passed, engine has a
+    GPU context)."""
+    ok, text = probe.probe()
+    if ok and not engine_class().bl_use_gpu_context:
+        return False, "the render engine was registered without a GPU context"
+    return ok, text
+
+
+def device_changed(settings, context):
+    if settings.device == "GPU" and bpy.app.background:
+        ensure()
+    settings.id_data.update_tag()
+
+
+@persistent
+def _on_load(_filepath=""):
+    if bpy.app.background and any(getattr(s, "gaussvdb", None) is not None
+                                  and s.gaussvdb.device == "GPU" for s in bpy.data.scenes):
+        ensure()
+
+
+def register_extra():
+    if _on_load not in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.append(_on_load)
+
+
+def unregister_extra():
+    if _on_load in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_on_load)
+
+
+CLASSES = ()

@@ -1,0 +1,168 @@
+"""GPUDevice: the CPU device's scene sync and frame set-up (it holds a CPUDevice), drawn by compute
+shaders on Blender's ``gpu`` module. Per frame key the mode's tables (kernels/render/gpu_layout)
+are uploaded once (geometry once per sync), then each render() call is one dispatch per step of
+rows and a readback; ``render_texture`` leaves the image on the GPU (the viewport draws it).
+
+Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, inout State st)``,
+its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
+device does not draw (lit volumes; modes without an entry) are said in ``fallback(frame)``: lit
+frames go to the CPU device, missing modes raise.
+"""
+from __future__ import annotations
+
+import time
+from collections import namedtuple
+
+import numpy as np
+
+from ...kernels.mode_names import Mode
+from ...kernels.render import device as kdevice
+from ...kernels.render import gpu_layout
+from . import compute, context
+
+# glsl: the mode's file; defines: extra #defines (WALK: common.glsl's leaf walk and its tables)
+ModeSpec = namedtuple("ModeSpec", "glsl defines")
+MODES = {"reference": ModeSpec("reference.glsl", ("WALK",))}
+STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
+
+
+class GPUDevice(kdevice.Device):
+    name = "GPU"
+
+    def __init__(self, threads=None, cache_dir=None, **kw):
+        self.cpu = kdevice.CPUDevice(threads=threads, cache_dir=cache_dir, **kw)
+        self._geom = None  # (key, Tables, textures)
+        self._up = None  # (frame key, Tables, textures)
+        self._out = None  # the last output textures (reused while the band size stays)
+        self.stats = {}
+        self.renderer = None
+
+    def sync(self, scene):
+        self.cpu.sync(scene)
+        self.stats["seconds_sync"] = self.cpu.stats.get("seconds_sync", 0.0)
+
+    def begin_frame(self, scene, camera, tf):
+        frame = self.cpu.begin_frame(scene, camera, tf)
+        self.stats["seconds_setup"] = self.cpu.stats.get("seconds_setup", 0.0)
+        return frame
+
+    def end_frame(self):
+        self.cpu.end_frame()
+        self._up = None
+
+    def band_rows(self, scene):
+        return 8, 8
+
+    def load_kernels(self):
+        return 0.0
+
+    @staticmethod
+    def fallback(frame):
+        """Why this device hands the frame to the CPU device (None: it draws it)."""
+        if (np.asarray(frame.objects.lit) != 0).any():
+            return "lit volumes"
+        return None
+
+    def _spec(self, frame):
+        name = Mode(int(frame.mode)).name.lower()
+        spec = MODES.get(name)
+        if spec is None:
+            raise ValueError(f"{name} mode is not yet on the GPU device (use the CPU device)")
+        return name, spec
+
+    def _tables(self, frame):
+        """The frame's uploaded tables (geometry reused while the sync is the same)."""
+        name, spec = self._spec(frame)
+        geo_fn, frame_fn = gpu_layout.MODE_TABLES[name]
+        gkey = (self.cpu._sync_count, name)
+        if self._geom is None or self._geom[0] != gkey:
+            self._geom = None
+            t = geo_fn(frame)
+            self._geom = (gkey, t, compute.upload(t.textures))
+        if self._up is None or self._up[0] != frame.key:
+            t = frame_fn(frame)
+            self._up = (frame.key, t, compute.upload(t.textures))
+        _, gt, gtex = self._geom
+        _, ft, ftex = self._up
+        ints = dict(gt.ints, **ft.ints)
+        tex = dict(gtex, **ftex)
+        arrays = dict(gt.textures, **ft.textures)
+        self.stats["gpu_bytes"] = gpu_layout.nbytes(gt) + gpu_layout.nbytes(ft)
+        return name, spec, arrays, tex, ints
+
+    def _dispatch(self, frame, rows, cols):
+        import gpu
+
+        name, spec, arrays, tex, ints = self._tables(frame)
+        sh = compute.shader(name, spec, arrays, ints)
+        self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out)
+        self.renderer = gpu.platform.renderer_get()
+        return self._out
+
+    def render(self, scene, camera, tf, *, rows=None, cols=None, progress=None, cancel=None):
+        t0 = time.perf_counter()
+        frame = self.begin_frame(scene, camera, tf)
+        why = self.fallback(frame)
+        if why is not None:
+            out = self.cpu.render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
+                                  cancel=cancel)
+            self.stats = dict(self.cpu.stats, fallback=why)
+            return out
+        t_setup = self.stats["seconds_setup"]
+        r0, r1 = (0, frame.height) if rows is None else (int(rows[0]), int(rows[1]))
+        c0, c1 = (0, frame.width) if cols is None else (int(cols[0]), int(cols[1]))
+        if not (0 <= r0 <= r1 <= frame.height and 0 <= c0 <= c1 <= frame.width):
+            raise ValueError(f"rows {r0}..{r1} / columns {c0}..{c1} outside the "
+                             f"{frame.width}x{frame.height} image")
+        nr, nc = r1 - r0, c1 - c0
+        rgba = np.zeros((nr, nc, 4), np.float32)
+        dv = np.zeros((nr, nc, 4), np.float32)
+        dv[..., 0] = 1e10
+        step = STEP_ROWS if (progress or cancel) else max(nr, 1)
+        cancelled = False
+
+        def draw():
+            nonlocal cancelled
+            a = 0
+            while a < nr:
+                if cancel is not None and cancel():
+                    cancelled = True
+                    return
+                b = min(nr, a + step)
+                out = self._dispatch(frame, (r0 + a, r0 + b), (c0, c1))
+                rgba[a:b] = compute.read(out[0])
+                dv[a:b] = compute.read(out[1])
+                a = b
+                if progress is not None:
+                    progress(a / nr)
+
+        if nr and nc:
+            context.run(draw)
+        self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
+                          segments=0.0, cancelled=bool(cancelled), threads=1, gpu=self.renderer)
+        self.stats.pop("fallback", None)
+        res = {"Combined": rgba}
+        if "Depth" in scene.passes:
+            res["Depth"] = np.ascontiguousarray(dv[..., 0])
+        if "Value" in scene.passes:
+            res["Value"] = np.ascontiguousarray(dv[..., 1])
+        return res
+
+    def render_texture(self, scene, camera, tf):
+        """The whole frame's Combined pass as a GPU texture (call inside a GPU context: view_draw);
+        None when this device hands the frame to the CPU (fallback)."""
+        frame = self.begin_frame(scene, camera, tf)
+        if self.fallback(frame) is not None:
+            return None
+        return self._dispatch(frame, (0, frame.height), (0, frame.width))[0]
+
+
+def register_device():
+    """GPU in kernels.render.device's registry (available_devices lists it where the probe says yes)."""
+    from . import probe
+
+    kdevice._REGISTRY["GPU"] = GPUDevice
+    kdevice._USABLE["GPU"] = lambda: probe.probe()[0]
+
+
+register_device()
