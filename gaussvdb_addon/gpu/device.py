@@ -17,12 +17,13 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import gpu_layout
+from ...kernels.render import gpu_layout, gpu_layout_gauss
 from . import compute, context
 
 # glsl: the mode's file; defines: extra #defines (WALK: common.glsl's leaf walk and its tables)
 ModeSpec = namedtuple("ModeSpec", "glsl defines")
-MODES = {"reference": ModeSpec("reference.glsl", ("WALK",))}
+MODES = {"reference": ModeSpec("reference.glsl", ("WALK",)),
+         "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",))}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 
 
@@ -61,7 +62,18 @@ class GPUDevice(kdevice.Device):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
         if (np.asarray(frame.objects.lit) != 0).any():
             return "lit volumes"
+        if int(frame.mode) <= Mode.FIELD:
+            return gpu_layout_gauss.unsupported(frame)
         return None
+
+    def _overflow(self, scene, camera, tf, rgba, dv, r0, c0):
+        """Redraw on the CPU device the screen tiles with a ray that ran out of hit slots."""
+        for (a, b), (c, d) in gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0):
+            out = self.cpu.render(scene, camera, tf, rows=(a, b), cols=(c, d))
+            rgba[a - r0:b - r0, c - c0:d - c0] = out["Combined"]
+            dv[a - r0:b - r0, c - c0:d - c0, 0] = out.get("Depth", 1e10)
+            dv[a - r0:b - r0, c - c0:d - c0, 1] = out.get("Value", 0.0)
+        self.stats["overflow_tiles"] = len(gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0))
 
     def _spec(self, frame):
         name = Mode(int(frame.mode)).name.lower()
@@ -95,7 +107,7 @@ class GPUDevice(kdevice.Device):
 
         name, spec, arrays, tex, ints = self._tables(frame)
         sh = compute.shader(name, spec, arrays, ints)
-        self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out)
+        self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
         return self._out
 
@@ -138,6 +150,7 @@ class GPUDevice(kdevice.Device):
 
         if nr and nc:
             context.run(draw)
+            self._overflow(scene, camera, tf, rgba, dv, r0, c0)
         self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
                           segments=0.0, cancelled=bool(cancelled), threads=1, gpu=self.renderer)
         self.stats.pop("fallback", None)

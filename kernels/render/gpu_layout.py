@@ -171,3 +171,8 @@ MODE_TABLES = {"reference": (reference_geometry, reference_frame)}
 
 def nbytes(tables):
     return int(sum(a.nbytes for a in tables.textures.values()))
+
+
+from . import gpu_layout_gauss as _gauss  # noqa: E402  (the Gaussian modes' tables use the above)
+
+MODE_TABLES.update(_gauss.MODE_TABLES)

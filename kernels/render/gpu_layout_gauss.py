@@ -1,7 +1,7 @@
 """The Gaussian modes' GPU tables (particles, field, paper): the CPU frame's numpy groups turned
 into float32 arrays ready for RGBA32F textures (plain numpy, no bpy/gpu).
 
-Every table is folded into a 2-D RGBA texture ROW_TEXELS texels wide (``fold``): a table of rows
+Every table is folded into a 2-D RGBA texture gpu_layout.ROW_TEXELS texels wide (``fold``): a table of rows
 of c columns puts row i in texels i * ceil(c / 4) ...; a 1-D table puts element k in texel k // 4,
 channel k % 4 (``flat``). Integers travel as exact floats, so each must stay below 2^24
 (``check_exact`` says where one does not; the device then draws that frame on the CPU).
@@ -21,36 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-ROW_TEXELS = 4096
-EXACT = 1 << 24  # floats hold every integer below this exactly
+from . import gpu_layout
+
 MASK_BITS = 22
-
-
-def fold(table) -> np.ndarray:
-    """(rows, c) -> (texture rows, ROW_TEXELS, 4) float32: row i from texel i * ceil(c / 4)."""
-    a = np.asarray(table, np.float32)
-    a = a.reshape(a.shape[0], -1) if a.ndim != 1 else a.reshape(-1, 1)
-    per = -(-a.shape[1] // 4)
-    body = np.zeros((a.shape[0], per * 4), np.float32)
-    body[:, :a.shape[1]] = a
-    return _pad(body.reshape(-1, 4))
-
-
-def flat(values) -> np.ndarray:
-    """1-D -> (texture rows, ROW_TEXELS, 4) float32: element k in texel k // 4, channel k % 4."""
-    a = np.asarray(values, np.float32).ravel()
-    texels = max(1, -(-a.size // 4))
-    body = np.zeros(texels * 4, np.float32)
-    body[:a.size] = a
-    return _pad(body.reshape(-1, 4))
-
-
-def _pad(texels) -> np.ndarray:
-    n = max(1, texels.shape[0])
-    rows = -(-n // ROW_TEXELS)
-    out = np.zeros((rows * ROW_TEXELS, 4), np.float32)
-    out[:texels.shape[0]] = texels
-    return out.reshape(rows, ROW_TEXELS, 4)
+OVERFLOW_DEPTH = -2e10  # a pixel's Depth when its ray needed more hit slots than the shader has
+fold, flat = gpu_layout.fold_rows, gpu_layout.fold_scalars
 
 
 def mask_pieces(masks) -> np.ndarray:
@@ -65,7 +40,7 @@ def check_exact(**arrays):
     """None, or the name of the first integer array (or count) that floats cannot hold exactly."""
     for name, a in arrays.items():
         a = np.asarray(a)
-        if a.size and (int(a.max()) >= EXACT or int(a.min()) <= -EXACT):
+        if a.size and (int(a.max()) >= gpu_layout.EXACT or int(a.min()) <= -gpu_layout.EXACT):
             return name
     return None
 
@@ -118,3 +93,34 @@ def unsupported(frame) -> str | None:
     if a.t_start.shape[0] <= NO_TILES[0].shape[0]:
         return "no screen-tile lists"
     return check_exact(tile_entries=a.t_start[-1:], gaussians=[frame.gauss.rec.shape[0]])
+
+
+def overflow_tiles(depth, row0=0, col0=0):
+    """The screen tiles (image rows (a, b), columns (c, d), clipped to the region drawn from row0,
+    col0) holding a pixel whose Depth is OVERFLOW_DEPTH: the device draws those on the CPU."""
+    from ._cpu_tiles import TILE
+
+    rows, cols = np.nonzero(np.asarray(depth) == np.float32(OVERFLOW_DEPTH))
+    nr, nc = np.shape(depth)
+    out = []
+    for ty, tx in sorted(set(zip(((rows + row0) // TILE).tolist(), ((cols + col0) // TILE).tolist()))):
+        a, c = max(ty * TILE, row0), max(tx * TILE, col0)
+        out.append(((a, min((ty + 1) * TILE, row0 + nr)), (c, min((tx + 1) * TILE, col0 + nc))))
+    return out
+
+
+def no_geometry(frame):
+    """The Gaussian modes upload everything per frame (weights and entry bounds change with it)."""
+    return gpu_layout.Tables({}, {})
+
+
+def particles_frame(frame):
+    """Common tables, the Gaussians and the screen-tile lists."""
+    t = gpu_layout.common_tables(frame)
+    t.textures.update(gauss_tables(frame.mode, frame.gauss))
+    a = frame.accel
+    t.textures.update(tile_tables(a.t_start, a.t_items, a.t_mask))
+    return t
+
+
+MODE_TABLES = {"particles": (no_geometry, particles_frame)}

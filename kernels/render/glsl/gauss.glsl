@@ -2,22 +2,25 @@
  * screen-tile lists (gpu_layout_gauss), erf, and the exact ray/support test (_cpu_chords.chord).
  * Float32 throughout; the CPU device's float64 image is matched within 50 dB, not bit for bit. */
 #define TILE 8
+#define SET_TAU_MAX 1
+#define SET_K 2
+#define OVERFLOW_DEPTH (-2e10)  /* gpu_layout_gauss.OVERFLOW_DEPTH */
 #define SQRT_HALF 0.70710678
 #define SQRT_HALF_PI 1.25331414
 #define TWO_OVER_SQRT_PI 1.12837917
 
 /* Gaussian g: centre, 1/sigma, weight w, column 7 (entry bound, or paper's w x volfac) */
-vec4 g_rec0(int g) { return tex_texel(g_rec, 2 * g); }
-vec4 g_rec1(int g) { return tex_texel(g_rec, 2 * g + 1); }
-vec3 g_color(int g) { return tex_texel(g_aux, 2 * g).rgb; }
-float g_value(int g) { return tex_texel(g_aux, 2 * g).a; }  /* 0 when NaN */
-float g_vweight(int g) { return tex_texel(g_aux, 2 * g + 1).r; }  /* 0 when NaN */
-int g_object(int g) { return int(tex_texel(g_aux, 2 * g + 1).g); }
+vec4 g_rec0(int g) { return texel(g_rec, 2 * g); }
+vec4 g_rec1(int g) { return texel(g_rec, 2 * g + 1); }
+vec3 g_color(int g) { return texel(g_aux, 2 * g).rgb; }
+float g_value(int g) { return texel(g_aux, 2 * g).a; }  /* 0 when NaN */
+float g_vweight(int g) { return texel(g_aux, 2 * g + 1).r; }  /* 0 when NaN */
+int g_object(int g) { return int(texel(g_aux, 2 * g + 1).g); }
 
-int tile_first(int tl) { return int(tex_flat(t_start, tl)); }
+int tile_first(int tl) { return int(scalar(t_start, tl)); }
 /* entry q of the tile lists: its Gaussian, or -1 when pixel bit `bit` is not in its mask */
 int tile_entry(int q, int bit) {
-  vec4 e = tex_texel(t_ent, q);
+  vec4 e = texel(t_ent, q);
   int piece = bit / 22;
   int m = int(piece == 0 ? e.y : (piece == 1 ? e.z : e.w));
   return ((m >> (bit - 22 * piece)) & 1) != 0 ? int(e.x) : -1;

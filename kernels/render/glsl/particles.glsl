@@ -1,10 +1,10 @@
-/* Particles mode (_cpu_gauss.trace_tiles + sweep_particles, _cpu_chords.close_interval): one ray
+/* Particles mode (needs gauss.glsl before it; _cpu_gauss.trace_tiles + sweep_particles, _cpu_chords.close_interval): one ray
  * tests its screen tile's Gaussians in list order (by entry bound) and sweeps their chords in
  * (t, id) order; overlapping chords form clusters whose intervals get closed-form optical depth.
  * The hits live in PCAP fixed slots: a slot is freed when its chord's cluster interval closes
  * past its exit. When every slot is taken the ray sweeps up to the next candidate's entry bound
  * (all entries before it are known, and the sweep's result does not depend on when it runs);
- * if that frees none, trace_mode returns OVERFLOW and the device draws that pixel's tile on the
+ * if that frees none, the pixel's depth is OVERFLOW_DEPTH and the device draws its tile on the
  * CPU. */
 #ifndef PCAP
 #define PCAP 96
@@ -12,7 +12,6 @@
 #ifndef BATCH
 #define BATCH 32
 #endif
-#define OVERFLOW (-1)
 
 float h_s[PCAP], h_e[PCAP], h_ts[PCAP], h_sa[PCAP], h_c[PCAP], h_pk[PCAP], h_fa[PCAP], h_fb[PCAP];
 vec3 h_col[PCAP];
@@ -53,7 +52,7 @@ float chord_tau(int h, float a, float b) {
   return h_c[h] * erf_span(sa * (a - ts), sa * (b - ts), sa * (b - a));
 }
 
-void median_depth(inout RayState st, int h, float a, float b, float tsum) {
+void median_depth(inout State st, int h, float a, float b, float tsum) {
   float T = st.tr;
   if (st.depth != BG_DEPTH || T * exp(-tsum) > 0.5) return;
   float target = T > 0.5 ? log(T / 0.5) : 0.0;
@@ -65,13 +64,13 @@ void median_depth(inout RayState st, int h, float a, float b, float tsum) {
   st.depth = 0.5 * (lo + hi);
 }
 
-void composite_mix(inout RayState st, float tsum, vec3 c, float vs, float vw, float a, float b) {
-  composite(st, tsum, c / tsum, vw > 0.0 ? vs / vw : 0.0, vw > 0.0, a, b);
+void composite_mix(inout State st, float tsum, vec3 c, float vs, float vw, float a, float b) {
+  composite(st, tsum, c / tsum, vw > 0.0 ? vs / vw : 0.0 / 0.0, a, b);
 }
 
 /* Composite the members' optical depth over [a, b]; the members still open at b stay in mem[:n]
  * (n returned) with their peak-density sum in rho and colour bounds; the others' slots are freed. */
-int close_interval(inout RayState st, float a, float b, float spread, float tau_max, out float rho) {
+int close_interval(inout State st, float a, float b, float spread, float tau_max, out float rho) {
   float tsum = 0.0, vs = 0.0, vw = 0.0;
   vec3 c = vec3(0.0);
   int n = 0;
@@ -125,7 +124,7 @@ void drop_kept(int n) { for (int k = 0; k < n; k++) { fre[nfree] = mem[k]; nfree
 
 /* Consume the entries before horizon; close the cluster when it ends before it. True once the
  * ray is opaque (early termination). */
-bool sweep_particles(inout RayState st, float horizon, float tau_max) {
+bool sweep_particles(inout State st, float horizon, float tau_max) {
   bool done = false;
   for (int it = 0; it < 1000000; it++) {
     if (q0 >= nq || !(q_t[q0] < horizon)) break;
@@ -162,9 +161,9 @@ bool sweep_particles(inout RayState st, float horizon, float tau_max) {
   return done;
 }
 
-int trace_mode(int i, int j, vec3 ow, vec3 dw, float tn, float tf, inout RayState st) {
-  float tau_max = set_at(1), k2 = set_at(2) * set_at(2);
-  int ntx = (int(cam_at(1)) + TILE - 1) / TILE;
+bool trace_tiles(int i, int j, float tn, float tf, inout State st) {
+  float tau_max = fr(FR_SET + SET_TAU_MAX), k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
+  int ntx = (int(fr(FR_CAM + 1)) + TILE - 1) / TILE;
   int tl = (j / TILE) * ntx + i / TILE, bit = (j % TILE) * TILE + i % TILE;
   int t1 = tile_first(tl + 1);
   q0 = 0; nq = 0; nm = 0; nfree = PCAP;
@@ -178,15 +177,15 @@ int trace_mode(int i, int j, vec3 ow, vec3 dw, float tn, float tf, inout RayStat
     float lbg = g_rec1(g).w;
     if (nh >= swept + BATCH && ((q0 < nq && q_t[q0] < lbg) || (nm > 0 && s_cend <= lbg))) {
       swept = nh;
-      if (sweep_particles(st, lbg, tau_max)) return 0;
+      if (sweep_particles(st, lbg, tau_max)) return true;
     }
-    int ob = N_OBJ == 1 ? 0 : g_object(g);
+    int ob = n_obj == 1 ? 0 : g_object(g);
     float aa, qq, ra;
-    vec4 c = chord(g, RO[ob], RD[ob], k2, max(tn, RCLIP[ob].x), min(tf, RCLIP[ob].y), aa, qq, ra);
+    vec4 c = chord(g, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
     if (!(c.y > c.x)) continue;
     if (nfree == 0) {
-      if (sweep_particles(st, lbg, tau_max)) return 0;
-      if (nfree == 0) return OVERFLOW;
+      if (sweep_particles(st, lbg, tau_max)) return true;
+      if (nfree == 0) return false;
     }
     int h = fre[--nfree];
     h_s[h] = c.x; h_e[h] = c.y; h_ts[h] = c.z; h_pk[h] = c.w;
@@ -197,10 +196,14 @@ int trace_mode(int i, int j, vec3 ow, vec3 dw, float tn, float tf, inout RayStat
     queue_insert(c.x, h);
     nh++;
   }
-  int b0 = nq - q0;
-  bool dd = sweep_particles(st, INF, tau_max);
-
-  return 0;
+  sweep_particles(st, INF, tau_max);
+  return true;
 }
 
-void mixture_normal(inout RayState st) {}
+void trace_mode(Ray r, inout State st)
+{
+  ivec2 p = ivec2(gl_GlobalInvocationID.xy) + ivec2(col0, row0);
+  if (!trace_tiles(p.x, p.y, r.tn, r.tf, st)) {
+    st.depth = OVERFLOW_DEPTH;  /* the device draws this pixel's tile on the CPU */
+  }
+}
