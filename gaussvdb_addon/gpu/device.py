@@ -68,12 +68,13 @@ class GPUDevice(kdevice.Device):
 
     def _overflow(self, scene, camera, tf, rgba, dv, r0, c0):
         """Redraw on the CPU device the screen tiles with a ray that ran out of hit slots."""
-        for (a, b), (c, d) in gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0):
+        tiles = gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0)
+        for (a, b), (c, d) in tiles:
             out = self.cpu.render(scene, camera, tf, rows=(a, b), cols=(c, d))
             rgba[a - r0:b - r0, c - c0:d - c0] = out["Combined"]
             dv[a - r0:b - r0, c - c0:d - c0, 0] = out.get("Depth", 1e10)
             dv[a - r0:b - r0, c - c0:d - c0, 1] = out.get("Value", 0.0)
-        self.stats["overflow_tiles"] = len(gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0))
+        return len(tiles)
 
     def _spec(self, frame):
         name = Mode(int(frame.mode)).name.lower()
@@ -150,7 +151,7 @@ class GPUDevice(kdevice.Device):
 
         if nr and nc:
             context.run(draw)
-            self._overflow(scene, camera, tf, rgba, dv, r0, c0)
+            self.stats["overflow_tiles"] = self._overflow(scene, camera, tf, rgba, dv, r0, c0)
         self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
                           segments=0.0, cancelled=bool(cancelled), threads=1, gpu=self.renderer)
         self.stats.pop("fallback", None)

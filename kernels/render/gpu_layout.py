@@ -173,6 +173,4 @@ def nbytes(tables):
     return int(sum(a.nbytes for a in tables.textures.values()))
 
 
-from . import gpu_layout_gauss as _gauss  # noqa: E402  (the Gaussian modes' tables use the above)
-
-MODE_TABLES.update(_gauss.MODE_TABLES)
+from . import gpu_layout_gauss  # noqa: E402, F401  (adds the Gaussian modes to MODE_TABLES)

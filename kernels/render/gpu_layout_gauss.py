@@ -123,4 +123,4 @@ def particles_frame(frame):
     return t
 
 
-MODE_TABLES = {"particles": (no_geometry, particles_frame)}
+gpu_layout.MODE_TABLES["particles"] = (no_geometry, particles_frame)
