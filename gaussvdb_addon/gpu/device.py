@@ -23,7 +23,8 @@ from . import compute, context
 # glsl: the mode's file; defines: extra #defines (WALK: common.glsl's leaf walk and its tables)
 ModeSpec = namedtuple("ModeSpec", "glsl defines")
 MODES = {"reference": ModeSpec("reference.glsl", ("WALK",)),
-         "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",))}
+         "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",)),
+         "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP"))}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 
 

@@ -13,9 +13,9 @@ Tables (name: rows x columns, what):
 - t_start (flat, tiles + 1): each screen tile's first entry.
 - t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
   20 bits (bit b of the mask: piece b // 22, bit b % 22).
-- Field surfaces (object kind 2) also get the leaf lookup the normal needs (mixture_normal):
-  n_grid (walk grids x 8: node_min (3), node_dims (3), node_off), n_table (flat), n_cells (flat,
-  4096 per node), c_start (flat), c_items (flat).
+- Field mode also gets the leaf lookup its surfaces' normals need (mixture_normal): the core's
+  walk tables (node_table, node_cells, cell_skip) and the cells' Gaussian lists c_start, c_items
+  (flat).
 """
 from __future__ import annotations
 
@@ -70,17 +70,6 @@ def tile_tables(start, items, masks) -> dict:
     return {"t_start": flat(start), "t_ent": fold(ent)}
 
 
-def normal_tables(accel) -> dict:
-    """The leaf lookup of field surfaces' normals (see module doc)."""
-    nw = accel.walk_obj.shape[0]
-    grid = np.zeros((nw, 8))
-    grid[:, 0:3] = accel.node_min[:nw]
-    grid[:, 3:6] = accel.node_dims[:nw]
-    grid[:, 6] = accel.node_off[:nw]
-    return {"n_grid": fold(grid), "n_table": flat(accel.node_table), "n_cells": flat(accel.node_cells),
-            "c_start": flat(accel.cell_start), "c_items": flat(accel.cell_items)}
-
-
 def unsupported(frame) -> str | None:
     """Why the GPU's Gaussian modes cannot draw this frame exactly (the device then draws it on
     the CPU), or None: lit volumes, no screen-tile lists (switched off or too many entries), or
@@ -123,4 +112,15 @@ def particles_frame(frame):
     return t
 
 
+def field_frame(frame):
+    """The particles' tables, the leaf lookup and the cells' Gaussian lists (surface normals)."""
+    t = particles_frame(frame)
+    a = frame.accel
+    t.textures.update(gpu_layout.walk_tables(a))
+    t.textures.update(gpu_layout.walk_frame(a))
+    t.textures.update(c_start=flat(a.cell_start), c_items=flat(a.cell_items))
+    return t
+
+
 gpu_layout.MODE_TABLES["particles"] = (no_geometry, particles_frame)
+gpu_layout.MODE_TABLES["field"] = (no_geometry, field_frame)

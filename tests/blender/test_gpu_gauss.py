@@ -67,23 +67,28 @@ def scenes():
 CAM = Camera.frame_box([0] * 3, [20] * 3, W, W, direction=(1, 0.4, -0.3))
 
 
+@pytest.mark.parametrize("mode", ["particles", "field"])
 @pytest.mark.parametrize("name", ["fog", "level set", "two objects"])
-def test_particles_match_cpu(gpu, cpu, name):
-    sc = RenderScene(scenes()[name], mode="particles")
+def test_gauss_modes_match_cpu(gpu, cpu, mode, name):
+    objs = scenes()[name]
+    if mode == "field" and name == "level set":
+        objs[0].surface = True  # field mode draws it as a lit opaque surface
+    sc = RenderScene(objs, mode=mode)
     want = cpu.render(sc, CAM, TF)
     got = gpu.render(sc, CAM, TF)
     assert gpu.stats.get("fallback") is None, gpu.stats.get("fallback")
+    assert gpu.stats["overflow_tiles"] == 0  # every pixel drawn by the shader
     db = psnr(got["Combined"], want["Combined"])
     assert want["Combined"][..., 3].max() > 0.5
-    assert db >= MIN_DB, f"particles, {name}: PSNR {db:.1f} dB"
-    print(f"particles {name}: {db:.1f} dB, overflow tiles {gpu.stats.get('overflow_tiles')}")
+    assert db >= MIN_DB, f"{mode}, {name}: PSNR {db:.1f} dB"
+    print(f"{mode} {name}: {db:.1f} dB, overflow tiles {gpu.stats.get('overflow_tiles')}")
     # Depth where both reach half opacity; Value where the CPU has one
     d0, d1 = want["Depth"], got["Depth"]
     both = (d0 < 1e9) & (d1 < 1e9)
     assert np.mean((d0 < 1e9) != (d1 < 1e9)) < 0.01
     np.testing.assert_allclose(d1[both], d0[both], rtol=1e-3, atol=1e-3)
     vdb = psnr(got["Value"], want["Value"])
-    assert vdb >= MIN_DB, f"particles, {name}: Value PSNR {vdb:.1f} dB"
+    assert vdb >= MIN_DB, f"{mode}, {name}: Value PSNR {vdb:.1f} dB"
 
 
 def test_overflowing_rays_drawn_on_cpu(gpu, cpu):
@@ -91,7 +96,7 @@ def test_overflowing_rays_drawn_on_cpu(gpu, cpu):
     from the CPU device, so the image still matches."""
     n = 14
     r2 = lambda c: ((c - 6.5) ** 2).sum(1)  # noqa: E731
-    dense = lattice(n, lambda c: r2(c) < 49, lambda c: np.exp(-r2(c) / 40.0), sigma=1.6)
+    dense = lattice(n, lambda c: r2(c) < 49, lambda c: np.exp(-r2(c) / 40.0), sigma=2.0)
     sc = RenderScene([RenderObject(dense)], mode="particles")
     cam = Camera.frame_box([0] * 3, [13] * 3, 24, 24, direction=(1, 0.4, -0.3))
     want = cpu.render(sc, cam, TF)

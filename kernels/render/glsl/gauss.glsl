@@ -68,3 +68,64 @@ vec4 chord(int g, vec3 o, vec3 d, float k2, float tn, float tf, out float aa, ou
   float pk = r1.z * exp(-0.5 * min(qq, k2));
   return vec4(s, min(ts + hw, tf), ts, pk);
 }
+
+/* -- the hits of one ray (particles, field): PCAP slots, a free list and the entry queue ----- */
+#ifndef PCAP
+#define PCAP 160
+#endif
+#ifndef BATCH
+#define BATCH 32
+#endif
+float q_t[PCAP];  /* entry queue [q0, nq), sorted by (t, Gaussian id): times, ids, slots */
+int q_g[PCAP], q_h[PCAP];
+int fre[PCAP];
+int q0, nq, nfree;
+
+void slots_start()
+{
+  q0 = 0;
+  nq = 0;
+  nfree = PCAP;
+  for (int k = 0; k < PCAP; k++) {
+    fre[k] = PCAP - 1 - k;
+  }
+}
+
+void slot_free(int h)
+{
+  fre[nfree] = h;
+  nfree++;
+}
+
+/* from the back (_cpu_chords.queue_insert): entries arrive nearly in order */
+void queue_insert(float t, int g, int h)
+{
+  if (nq == PCAP) { /* the head has moved on: shift the queue down (a slot was free: room) */
+    for (int k = q0; k < nq; k++) {
+      q_t[k - q0] = q_t[k];
+      q_g[k - q0] = q_g[k];
+      q_h[k - q0] = q_h[k];
+    }
+    nq -= q0;
+    q0 = 0;
+  }
+  int j = nq;
+  while (j > q0 && (t < q_t[j - 1] || (t == q_t[j - 1] && g < q_g[j - 1]))) {
+    q_t[j] = q_t[j - 1];
+    q_g[j] = q_g[j - 1];
+    q_h[j] = q_h[j - 1];
+    j--;
+  }
+  q_t[j] = t;
+  q_g[j] = g;
+  q_h[j] = h;
+  nq++;
+}
+
+/* the ray's screen tile and its bit in the tile's pixel masks */
+ivec3 pixel_tile()
+{
+  ivec2 p = ivec2(gl_GlobalInvocationID.xy) + ivec2(col0, row0);
+  int ntx = (int(fr(FR_CAM + 1)) + TILE - 1) / TILE;
+  return ivec3((p.y / TILE) * ntx + p.x / TILE, (p.y % TILE) * TILE + p.x % TILE, 0);
+}

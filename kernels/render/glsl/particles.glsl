@@ -6,42 +6,17 @@
  * (all entries before it are known, and the sweep's result does not depend on when it runs);
  * if that frees none, the pixel's depth is OVERFLOW_DEPTH and the device draws its tile on the
  * CPU. */
-#ifndef PCAP
-#define PCAP 96
-#endif
-#ifndef BATCH
-#define BATCH 32
-#endif
-
 float h_s[PCAP], h_e[PCAP], h_ts[PCAP], h_sa[PCAP], h_c[PCAP], h_pk[PCAP], h_fa[PCAP], h_fb[PCAP];
 vec3 h_col[PCAP];
 float h_val[PCAP], h_vw[PCAP];
-int h_g[PCAP];
-#ifndef QCAP
-#define QCAP PCAP
-#endif
-float q_t[QCAP];   /* entry queue [q0, nq), sorted by (t, Gaussian id) */
-int q_h[QCAP];
-int mem[PCAP], fre[PCAP];
-int q0, nq, nm, nfree;
+int mem[PCAP];
+int nm;
 float s_a, s_last, s_rho, s_cend;
 vec3 cb_lo, cb_hi;  /* the open members' colour bounds */
 
 void reset_bounds() { cb_lo = vec3(INF); cb_hi = vec3(-INF); }
 void widen(int h) { cb_lo = min(cb_lo, h_col[h]); cb_hi = max(cb_hi, h_col[h]); }
 float spread_of() { vec3 d = cb_hi - cb_lo; return max(d.x, max(d.y, d.z)); }
-
-void queue_insert(float t, int h) {
-  if (nq == QCAP) {  /* the queue's head has moved on: shift it down (room: a slot was free) */
-    for (int k = q0; k < nq; k++) { q_t[k - q0] = q_t[k]; q_h[k - q0] = q_h[k]; }
-    nq -= q0; q0 = 0;
-  }
-  int j = nq, key = h_g[h];
-  while (j > q0 && (t < q_t[j - 1] || (t == q_t[j - 1] && key < h_g[q_h[j - 1]]))) {
-    q_t[j] = q_t[j - 1]; q_h[j] = q_h[j - 1]; j--;
-  }
-  q_t[j] = t; q_h[j] = h; nq++;
-}
 
 float erf_at(int h, float t) { return erf_g(h_sa[h] * (clamp(t, h_s[h], h_e[h]) - h_ts[h])); }
 
@@ -115,12 +90,12 @@ int close_interval(inout State st, float a, float b, float spread, float tau_max
   n = 0;
   for (int k = 0; k < nm; k++) {
     int h = mem[k];
-    if (h_e[h] > b) { mem[n] = h; n++; } else { fre[nfree] = h; nfree++; }
+    if (h_e[h] > b) { mem[n] = h; n++; } else { slot_free(h); }
   }
   return n;
 }
 
-void drop_kept(int n) { for (int k = 0; k < n; k++) { fre[nfree] = mem[k]; nfree++; } }
+void drop_kept(int n) { for (int k = 0; k < n; k++) { slot_free(mem[k]); } }
 
 /* Consume the entries before horizon; close the cluster when it ends before it. True once the
  * ray is opaque (early termination). */
@@ -161,13 +136,13 @@ bool sweep_particles(inout State st, float horizon, float tau_max) {
   return done;
 }
 
-bool trace_tiles(int i, int j, float tn, float tf, inout State st) {
+bool trace_tiles(float tn, float tf, inout State st) {
   float tau_max = fr(FR_SET + SET_TAU_MAX), k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
-  int ntx = (int(fr(FR_CAM + 1)) + TILE - 1) / TILE;
-  int tl = (j / TILE) * ntx + i / TILE, bit = (j % TILE) * TILE + i % TILE;
+  ivec3 tb = pixel_tile();
+  int tl = tb.x, bit = tb.y;
   int t1 = tile_first(tl + 1);
-  q0 = 0; nq = 0; nm = 0; nfree = PCAP;
-  for (int k = 0; k < PCAP; k++) fre[k] = PCAP - 1 - k;
+  slots_start();
+  nm = 0;
   s_a = 0.0; s_last = 0.0; s_rho = 0.0; s_cend = -INF;
   reset_bounds();
   int nh = 0, swept = 0;
@@ -191,9 +166,8 @@ bool trace_tiles(int i, int j, float tn, float tf, inout State st) {
     h_s[h] = c.x; h_e[h] = c.y; h_ts[h] = c.z; h_pk[h] = c.w;
     h_sa[h] = SQRT_HALF * aa * ra;
     h_c[h] = c.w * SQRT_HALF_PI * ra;
-    h_g[h] = g;
     h_col[h] = g_color(g); h_val[h] = g_value(g); h_vw[h] = g_vweight(g);
-    queue_insert(c.x, h);
+    queue_insert(c.x, g, h);
     nh++;
   }
   sweep_particles(st, INF, tau_max);
@@ -202,8 +176,7 @@ bool trace_tiles(int i, int j, float tn, float tf, inout State st) {
 
 void trace_mode(Ray r, inout State st)
 {
-  ivec2 p = ivec2(gl_GlobalInvocationID.xy) + ivec2(col0, row0);
-  if (!trace_tiles(p.x, p.y, r.tn, r.tf, st)) {
+  if (!trace_tiles(r.tn, r.tf, st)) {
     st.depth = OVERFLOW_DEPTH;  /* the device draws this pixel's tile on the CPU */
   }
 }
