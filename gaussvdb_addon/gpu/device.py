@@ -24,7 +24,8 @@ from . import compute, context
 ModeSpec = namedtuple("ModeSpec", "glsl defines")
 MODES = {"reference": ModeSpec("reference.glsl", ("WALK",)),
          "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",)),
-         "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP"))}
+         "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP")),
+         "paper": ModeSpec(("gauss.glsl", "paper.glsl"), ())}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 
 
@@ -63,7 +64,7 @@ class GPUDevice(kdevice.Device):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
         if (np.asarray(frame.objects.lit) != 0).any():
             return "lit volumes"
-        if int(frame.mode) <= Mode.FIELD:
+        if int(frame.mode) <= Mode.PAPER:
             return gpu_layout_gauss.unsupported(frame)
         return None
 

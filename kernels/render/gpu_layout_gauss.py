@@ -70,18 +70,35 @@ def tile_tables(start, items, masks) -> dict:
     return {"t_start": flat(start), "t_ent": fold(ent)}
 
 
+def frame_tiles(frame):
+    """(starts, ids, masks) the shader scans: the frame's own screen-tile lists (particles, field)
+    or, for paper mode (whose CPU kernels walk the leaves), lists of the Gaussians with its
+    weights built here once per frame; None when there are none (switched off, too many)."""
+    from .device import screen_tiles
+    from .packing import SET_K
+    from .scene import Mode
+
+    if int(frame.mode) != Mode.PAPER:
+        a = frame.accel
+        return None if a.t_start.shape[0] <= 1 else (a.t_start, a.t_items, a.t_mask)
+    if not hasattr(frame, "gpu_tiles"):
+        g = frame.gauss
+        i2w = [np.linalg.inv(m) for m in frame.objects.w2i]
+        t = screen_tiles(frame.cam, i2w, g.mu, g.inv, g.obj, g.w, frame.transfer.settings[SET_K])
+        frame.gpu_tiles = None if t is None else t[:3]
+    return frame.gpu_tiles
+
+
 def unsupported(frame) -> str | None:
     """Why the GPU's Gaussian modes cannot draw this frame exactly (the device then draws it on
     the CPU), or None: lit volumes, no screen-tile lists (switched off or too many entries), or
     an index past the floats' exact range."""
-    from .packing import NO_TILES
-
     if (np.asarray(frame.objects.lit) != 0).any():
         return "lit volumes"
-    a = frame.accel
-    if a.t_start.shape[0] <= NO_TILES[0].shape[0]:
+    tiles = frame_tiles(frame)
+    if tiles is None:
         return "no screen-tile lists"
-    return check_exact(tile_entries=a.t_start[-1:], gaussians=[frame.gauss.rec.shape[0]])
+    return check_exact(tile_entries=tiles[0][-1:], gaussians=[frame.gauss.rec.shape[0]])
 
 
 def overflow_tiles(depth, row0=0, col0=0):
@@ -104,11 +121,10 @@ def no_geometry(frame):
 
 
 def particles_frame(frame):
-    """Common tables, the Gaussians and the screen-tile lists."""
+    """Common tables, the Gaussians and the screen-tile lists (particles, paper)."""
     t = gpu_layout.common_tables(frame)
     t.textures.update(gauss_tables(frame.mode, frame.gauss))
-    a = frame.accel
-    t.textures.update(tile_tables(a.t_start, a.t_items, a.t_mask))
+    t.textures.update(tile_tables(*frame_tiles(frame)))
     return t
 
 
@@ -124,3 +140,4 @@ def field_frame(frame):
 
 gpu_layout.MODE_TABLES["particles"] = (no_geometry, particles_frame)
 gpu_layout.MODE_TABLES["field"] = (no_geometry, field_frame)
+gpu_layout.MODE_TABLES["paper"] = (no_geometry, particles_frame)

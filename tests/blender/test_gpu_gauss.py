@@ -1,6 +1,7 @@
-"""The GPU device's Gaussian modes against the CPU device (llvmpipe here): particles on a fog
-volume, a level-set shell and two overlapping objects (PSNR >= 50 dB, Depth and Value passes), and
-a ray with more chords than the shader's hit slots drawn by the CPU device (its tile)."""
+"""The GPU device's Gaussian modes against the CPU device (llvmpipe here): particles, field and
+paper on a fog volume, a level set (field: its surface; particles, paper: a shell) and two
+overlapping objects (PSNR >= 50 dB, Depth and Value passes), and rays with more chords than the
+shader's hit slots, whose tiles the CPU device draws."""
 import math
 
 import numpy as np
@@ -58,7 +59,7 @@ def shell():
 def scenes():
     m = np.eye(4)
     m[:3, 3] = (5.0, 2.0, 1.0)
-    two = [RenderObject(fog()), RenderObject(fog(), matrix_world=m,
+    two = [RenderObject(fog()), RenderObject(shell(), matrix_world=m, level_set_color="z",
                                              tf=TransferFunction.from_colormap("magma", 0, 1.0, density=0.6))]
     return {"fog": [RenderObject(fog())], "level set": [RenderObject(shell(), level_set_color=(0.9, 0.5, 0.2))],
             "two objects": two}
@@ -67,7 +68,7 @@ def scenes():
 CAM = Camera.frame_box([0] * 3, [20] * 3, W, W, direction=(1, 0.4, -0.3))
 
 
-@pytest.mark.parametrize("mode", ["particles", "field"])
+@pytest.mark.parametrize("mode", ["particles", "field", "paper"])
 @pytest.mark.parametrize("name", ["fog", "level set", "two objects"])
 def test_gauss_modes_match_cpu(gpu, cpu, mode, name):
     objs = scenes()[name]
