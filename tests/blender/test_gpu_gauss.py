@@ -80,7 +80,7 @@ def test_gauss_modes_match_cpu(gpu, cpu, mode, name):
     assert gpu.stats.get("fallback") is None, gpu.stats.get("fallback")
     assert gpu.stats["overflow_tiles"] == 0  # every pixel drawn by the shader
     db = psnr(got["Combined"], want["Combined"])
-    assert want["Combined"][..., 3].max() > 0.5
+    assert want["Combined"][..., 3].max() > 0.25  # something to compare (paper is the faintest)
     assert db >= MIN_DB, f"{mode}, {name}: PSNR {db:.1f} dB"
     print(f"{mode} {name}: {db:.1f} dB, overflow tiles {gpu.stats.get('overflow_tiles')}")
     # Depth where both reach half opacity; Value where the CPU has one
