@@ -17,7 +17,7 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import gpu_layout, gpu_layout_gauss
+from ...kernels.render import gpu_layout, gpu_layout_gauss  # the latter adds the Gaussian modes to MODE_TABLES
 from . import compute, context
 
 # glsl: the mode's file; defines: extra #defines (WALK: common.glsl's leaf walk and its tables)

@@ -172,5 +172,3 @@ MODE_TABLES = {"reference": (reference_geometry, reference_frame)}
 def nbytes(tables):
     return int(sum(a.nbytes for a in tables.textures.values()))
 
-
-from . import gpu_layout_gauss  # noqa: E402, F401  (adds the Gaussian modes to MODE_TABLES)

@@ -25,7 +25,7 @@ from . import gpu_layout
 
 MASK_BITS = 22
 OVERFLOW_DEPTH = -2e10  # a pixel's Depth when its ray needed more hit slots than the shader has
-fold, flat = gpu_layout.fold_rows, gpu_layout.fold_scalars
+fold, flat = gpu_layout.fold_rows, gpu_layout.fold_scalars  # importing this module registers its modes (end)
 
 
 def mask_pieces(masks) -> np.ndarray:
