@@ -2,11 +2,18 @@
 
     python benchmarks/bench_render.py [DATA_DIR_OR_FILES...] [--size 512] [--modes particles,field,reference]
                                       [--lod medium] [--repeat 2] [--threads 1,2] [--json out.json]
+                                      [--device cpu|gpu]
 
 Reports ms per frame (best of --repeat, after one warm-up), M segments (particles/paper: closed-
 form Gaussian segments; field: Gaussian terms evaluated per sample; reference: trilinear samples)
 per second per core, and the 1 -> 2 thread speedup. Falls back to a synthetic smoke blob when no
 file is given and samples/ is empty (said in the output).
+
+--device gpu: per file, mode and LOD, ms per frame of the GPU device (compute shaders on Blender's
+gpu module; whole frames: the CPU-side set-up, uploads and readback included, and the dispatch
+alone with the frame's tables kept, as the viewport redraws) at 512x512 and 1920x1080, the bytes
+of the scene's tables on the GPU, and the CPU device's ms per frame (all threads) in the same
+run. Says when the GPU is a software one (llvmpipe). Modes not on the GPU yet are listed as such.
 """
 from __future__ import annotations
 
@@ -56,6 +63,70 @@ def synthetic():
     return grid, gs
 
 
+def frame_setup(g, gs, size, mode, density=None):
+    """The scene, camera and transfer function of one case at size (w, h)."""
+    m = np.asarray(getattr(g, "index_to_world", np.eye(4)), float)
+    lo, hi = world_box(g, m)
+    dens = density or 4.0 / float(np.max(hi - lo))
+    vmin, vmax = (0.0, 1.0)
+    vals = np.asarray(gs.values, float)
+    if np.isfinite(vals).any():
+        vmin, vmax = float(np.nanmin(vals)), float(np.nanmax(vals))
+    tf = TransferFunction.from_colormap("viridis", vmin, vmax if vmax > vmin else vmin + 1, density=dens)
+    cam = Camera.frame_box(lo, hi, size[0], size[1], direction=(1.0, 1.0, -0.6))
+    sc = RenderScene([RenderObject(gs, m, grid=g, is_level_set=g.grid_class == "level_set")], mode=mode)
+    return sc, cam, tf
+
+
+def best_ms(fn, repeat):
+    fn()  # warm-up (shader compile, uploads, JIT load)
+    best = 1e9
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return 1e3 * best
+
+
+def gpu_rows(cases, a):
+    """The GPU device against the CPU device, per file, mode and size (see the docstring)."""
+    from blender_session import addon_module, start
+
+    start()
+    gdev = addon_module("gaussvdb_addon.gpu.device")
+    context = addon_module("gaussvdb_addon.gpu.context")
+    cpu, gpu = CPUDevice(), gdev.GPUDevice()
+    rows = []
+    for name, g, gs, _ in cases:
+        for mode in a.modes:
+            if mode not in gdev.MODES:
+                print(f"{name}: {mode} is not on the GPU device yet")
+                continue
+            for size in ((512, 512), (1920, 1080)):
+                sc, cam, tf = frame_setup(g, gs, size, mode, a.density)
+
+                def whole():
+                    gpu.end_frame()
+                    return gpu.render(sc, cam, tf)
+
+                def timed():
+                    return (best_ms(whole, a.repeat), best_ms(lambda: gpu.render(sc, cam, tf), a.repeat))
+
+                ms_frame, ms_draw = context.run(timed)
+                ms_cpu = best_ms(lambda: (cpu.end_frame(), cpu.render(sc, cam, tf)), a.repeat)
+                soft = any(k in (gpu.renderer or "").lower() for k in ("llvmpipe", "softpipe", "swrast"))
+                row = dict(file=name, mode=mode, lod=a.lod, width=size[0], height=size[1],
+                           gpu=gpu.renderer, software=soft, ms_gpu_frame=ms_frame, ms_gpu_draw=ms_draw,
+                           gpu_scene_bytes=gpu.stats.get("gpu_bytes"), ms_cpu=ms_cpu,
+                           cpu_threads=cpu.stats.get("threads"))
+                rows.append(row)
+                print(f"{name} {mode} {a.lod} {size[0]}x{size[1]}: GPU {ms_frame:8.1f} ms/frame "
+                      f"(dispatch {ms_draw:8.1f} ms), scene {row['gpu_scene_bytes'] / 2**20:7.2f} MiB | "
+                      f"CPU {ms_cpu:8.1f} ms ({row['cpu_threads']} threads) | {gpu.renderer}"
+                      f"{' (software)' if soft else ''}")
+    return rows
+
+
 def world_box(grid, m):
     lo = np.asarray(grid.bbox_min, float) - 0.5
     hi = np.asarray(grid.bbox_max, float) + 0.5
@@ -75,6 +146,7 @@ def main(argv=None):
     ap.add_argument("--density", type=cli_errors.nonnegative, default=None,
                     help="extinction per world unit (default 4 / box size)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--device", default="cpu", choices=("cpu", "gpu"))
     a = ap.parse_args(argv)
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     files = []
@@ -88,6 +160,12 @@ def main(argv=None):
         print("no .vdb files: using a synthetic 64^3 blob (say so when quoting these figures)")
         g, gs = synthetic()
         cases.append(("synthetic", g, gs, 0.0))
+    if a.device == "gpu":
+        rows = gpu_rows(cases, a)
+        if a.json:
+            with open(a.json, "w") as fh:
+                json.dump(rows, fh, indent=1)
+        return 0
     threads = a.threads
     dev = CPUDevice()
     rows = []

@@ -225,6 +225,8 @@ def _render_on(engine, depsgraph, name):
     finally:
         device.end_frame()  # the frame's tile lists can be large
     t_render = time.perf_counter() - t1
+    if device.stats.get("fallback"):  # the GPU device handed this frame to the CPU
+        engine.report({"INFO"}, f"GaussVDB: {device.stats['fallback']} are drawn by the CPU device")
     stats = dict(seconds_compile=t_compile, seconds_sync=t_sync, seconds_setup=t_setup,
                  seconds_render=t_render, width=width, height=height, region=list(region),
                  mode=rscene.mode, gaussians=sync.gaussians, objects=len(rscene.objects),

@@ -43,12 +43,22 @@ def _kind(a):
     return "FLOAT_3D" if a.ndim == 3 and a.dtype == np.float32 and a.shape[-1] != 4 else "FLOAT_2D"
 
 
+def object_cap(n):
+    """The per-object arrays' size a shader is compiled for: the power of two >= n objects
+    (small arrays stay in registers; one object's are no arrays at all)."""
+    cap = 1
+    while cap < n:
+        cap *= 2
+    return min(cap, gpu_layout.MAX_OBJ)
+
+
 def shader(mode, spec, textures, ints):
     """The mode's shader for these table names (compiled once per process)."""
     import gpu
 
     names = tuple(sorted(textures))
-    key = (mode, tuple((n, _kind(textures[n])) for n in names), tuple(sorted(ints)))
+    cap = object_cap(ints["n_obj"])
+    key = (mode, cap, tuple((n, _kind(textures[n])) for n in names), tuple(sorted(ints)))
     sh = _SHADERS.get(key)
     if sh is not None:
         return sh
@@ -59,7 +69,7 @@ def shader(mode, spec, textures, ints):
         info.sampler(slot, _kind(textures[n]), n)
     for n in CORE_INTS + tuple(sorted(set(ints) - set(CORE_INTS))):
         info.push_constant("INT", n)
-    info.define("MAX_OBJ", str(gpu_layout.MAX_OBJ))
+    info.define("MAX_OBJ", str(cap))
     info.define("LUT_TEXELS", str(gpu_layout.LUT_TEXELS))
     info.define(f"MODE_{mode}", "1")
     for d in spec.defines:
@@ -77,8 +87,12 @@ def upload(textures):
     import gpu
 
     out = {}
+    limit = gpu.capabilities.max_texture_size_get()
     for name, a in textures.items():
         a = np.ascontiguousarray(a, np.float32)
+        if _kind(a) == "FLOAT_2D" and max(a.shape[:2]) > limit:
+            raise ValueError(f"the scene's {name} table needs a {a.shape[1]}x{a.shape[0]} texture; "
+                             f"this GPU takes {limit} at most (use the CPU device)")
         buf = gpu.types.Buffer("FLOAT", a.size, a.reshape(-1))
         if _kind(a) == "FLOAT_3D":
             out[name] = gpu.types.GPUTexture((a.shape[2], a.shape[1], a.shape[0]), format="R32F", data=buf)

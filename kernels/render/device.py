@@ -3,8 +3,9 @@ uploads/builds acceleration data once per scene change; ``begin_frame(scene, cam
 the per-frame set-up (weights, colours, empty-space skips, screen-tile lists) once per frame;
 ``render(...)`` draws the whole frame or a region of it (a band of rows, a render border) and
 reuses the frame's set-up while camera, transfer function and settings are unchanged;
-``end_frame()`` frees it. ``CPUDevice`` (numba, parallel over rows, nogil, cached kernels) ships
-now; a GPU device implements the same methods and registers itself in ``_REGISTRY``.
+``end_frame()`` frees it. ``CPUDevice``: numba, parallel over rows, nogil, cached kernels. The GPU
+device (gaussvdb_addon/gpu/device.py: compute shaders on Blender's gpu module) implements the same
+methods over a CPUDevice's frame set-up and registers itself in ``_REGISTRY`` and ``_USABLE``.
 
 Passes: 'Combined' float32 (H, W, 4), linear, premultiplied alpha, row 0 = bottom;
 'Depth' float32 (H, W): world distance along the ray where the accumulated opacity reaches 0.5

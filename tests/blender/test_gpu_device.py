@@ -102,6 +102,13 @@ def test_bands_and_regions_are_pixels_of_the_whole_frame(gpu):
     assert steps[-1] == 1.0
 
 
+def test_the_gpu_device_is_registered_where_the_probe_passes(gpu):
+    from bl_ext.user_default.gaussvdb.kernels.render import available_devices, get_device
+
+    assert available_devices() == ["CPU", "GPU"]
+    assert get_device("GPU").name == "GPU"
+
+
 def test_lit_volumes_fall_back_to_the_cpu_device(gpu, cpu):
     fog = grids()[0]
     sc = RenderScene([RenderObject(grid=fog, shading="lit")], mode="reference")

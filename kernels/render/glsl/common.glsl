@@ -51,6 +51,11 @@ vec4 obj_texel(int ob, int k)
 vec3 g_ro[MAX_OBJ];
 vec3 g_rd[MAX_OBJ];
 vec2 g_rclip[MAX_OBJ];
+/* each object's kind (0 volume, 1 level-set shell, 2 surface), transfer function row and its
+ * parameters (vmin, vmax, log, density), read once per pixel */
+int g_kind[MAX_OBJ];
+int g_tfi[MAX_OBJ];
+vec4 g_par[MAX_OBJ];
 
 struct Ray {
   vec3 o, d; /* world origin, unit direction */
@@ -116,6 +121,10 @@ void object_rays(Ray r)
     g_ro[ob] = vec3(dot(m0.xyz, r.o) + m0.w, dot(m1.xyz, r.o) + m1.w, dot(m2.xyz, r.o) + m2.w);
     g_rd[ob] = vec3(dot(m0.xyz, r.d), dot(m1.xyz, r.d), dot(m2.xyz, r.d));
     g_rclip[ob] = clip_interval(ob, r.o, r.d);
+    vec4 o3 = obj_texel(ob, 3);
+    g_kind[ob] = int(o3.x);
+    g_tfi[ob] = int(o3.y);
+    g_par[ob] = texel(tf_par, g_tfi[ob]);
   }
 }
 
@@ -302,9 +311,8 @@ vec3 ls_color(int ob, int tfi, vec3 p)
 /* sigma_t, linear colour and value (NaN: none) of object ob for field value s at index point p */
 void sample_color(int ob, int kind, float s, vec3 p, out float sig, out vec3 col, out float val)
 {
-  vec4 o3 = obj_texel(ob, 3);
-  int tfi = int(o3.y);
-  vec4 par = texel(tf_par, tfi);
+  int tfi = g_tfi[ob];
+  vec4 par = g_par[ob];
   sig = 0.0;
   col = vec3(0.0);
   val = 0.0 / 0.0;
@@ -387,7 +395,7 @@ void surface_hit(inout State st, int ob, float t, vec3 g, vec3 p)
   st.hit_t = t;
   st.hit_g = g;
   st.hit_ob = ob;
-  st.hit_c = ls_color(ob, int(obj_texel(ob, 3).y), p);
+  st.hit_c = ls_color(ob, g_tfi[ob], p);
   if (st.depth == BG_DEPTH) {
     st.depth = t;
   }

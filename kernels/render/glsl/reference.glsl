@@ -90,72 +90,82 @@ float sdf_crossing(int ob, float phi, float t, float p0, float h, int cid)
 
 int cov_obj[MAX_OBJ];
 int cov_cell[MAX_OBJ];
+ivec3 cov_base[MAX_OBJ]; /* the cover's brick in the atlas */
+vec3 cov_org[MAX_OBJ]; /* index point of its brick's voxel 0 */
 
-/* one piece [p0, p1] covered by ncov leaves; returns true when the ray ends */
-bool reference_piece(inout State st, float p0, float p1, int ncov)
+/* a piece [p0, p1] covered by ncov leaves: its sample count n and step h (and the covers'
+ * bricks) */
+void piece_start(float p0, float p1, int ncov, out int n, out float h)
 {
   float dt = INF;
   for (int c = 0; c < ncov; c++) {
     int ob = cov_obj[c];
     dt = min(dt, obj_texel(ob, 3).z / length(g_rd[ob]));
+    cov_base[c] = brick_base(cov_cell[c]);
+    cov_org[c] = texel(cells, cov_cell[c]).xyz * 8.0 - 1.0;
   }
-  int n = max(1, int(ceil((p1 - p0) / dt)));
-  float h = (p1 - p0) / float(n);
-  for (int i = 0; i < n; i++) {
-    float t = p0 + (float(i) + 0.5) * h;
-    float sig = 0.0, vs = 0.0, vw = 0.0;
-    vec3 col = vec3(0.0);
-    int best = -1;
-    float bt = INF;
-    for (int c = 0; c < ncov; c++) {
-      int ob = cov_obj[c], cid = cov_cell[c];
-      vec3 x = g_ro[ob] + t * g_rd[ob];
-      float val = trilinear(brick_base(cid), brick_xyz(cid, x));
-      int kind = int(obj_texel(ob, 3).x);
-      if (kind == 2) {
-        float th = sdf_crossing(ob, val, t, p0, h, cid);
-        if (th < bt) {
-          bt = th;
-          best = c;
-        }
-        continue;
+  n = max(1, int(ceil((p1 - p0) / dt)));
+  h = (p1 - p0) / float(n);
+}
+
+/* the piece's sample at t (midpoint of a step h); returns true when the ray ends */
+bool reference_sample(inout State st, float t, float p0, float h, int ncov)
+{
+  float sig = 0.0, vs = 0.0, vw = 0.0;
+  vec3 col = vec3(0.0);
+  int best = -1;
+  float bt = INF;
+  for (int c = 0; c < ncov; c++) {
+    int ob = cov_obj[c], cid = cov_cell[c];
+    vec3 x = g_ro[ob] + t * g_rd[ob];
+    float val = trilinear(cov_base[c], clamp(x - cov_org[c], 0.0, 8.999999));
+    int kind = g_kind[ob];
+    if (kind == 2) {
+      float th = sdf_crossing(ob, val, t, p0, h, cid);
+      if (th < bt) {
+        bt = th;
+        best = c;
       }
-      if (kind == 1) { /* SDF (world units) -> occupancy with a one-voxel ramp */
-        val = 0.5 - val / obj_texel(ob, 5).w;
-      }
-      float s, v;
-      vec3 cc;
-      sample_color(ob, kind, val, x, s, cc, v);
-      if (s > 0.0) {
-        sig += s;
-        col += s * cc;
-        if (!isnan(v)) {
-          vs += s * v;
-          vw += s;
-        }
+      continue;
+    }
+    if (kind == 1) { /* SDF (world units) -> occupancy with a one-voxel ramp */
+      val = 0.5 - val / obj_texel(ob, 5).w;
+    }
+    float s, v;
+    vec3 cc;
+    sample_color(ob, kind, val, x, s, cc, v);
+    if (s > 0.0) {
+      sig += s;
+      col += s * cc;
+      if (!isnan(v)) {
+        vs += s * v;
+        vw += s;
       }
     }
-    if (best >= 0) {
-      int ob = cov_obj[best], cid = cov_cell[best];
-      vec3 x = g_ro[ob] + bt * g_rd[ob];
-      vec3 g = trilinear_grad(brick_base(cid), brick_xyz(cid, x));
-      if (sig > 0.0 && bt > t - 0.5 * h) {
-        composite(st, sig * (bt - (t - 0.5 * h)), col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0,
-                  t - 0.5 * h, bt);
-      }
-      surface_hit(st, ob, bt, g, x);
+  }
+  if (best >= 0) {
+    int ob = cov_obj[best], cid = cov_cell[best];
+    vec3 x = g_ro[ob] + bt * g_rd[ob];
+    vec3 g = trilinear_grad(cov_base[best], brick_xyz(cid, x));
+    if (sig > 0.0 && bt > t - 0.5 * h) {
+      composite(st, sig * (bt - (t - 0.5 * h)), col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0,
+                t - 0.5 * h, bt);
+    }
+    surface_hit(st, ob, bt, g, x);
+    return true;
+  }
+  if (sig > 0.0) {
+    composite(st, sig * h, col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0, t - 0.5 * h, t + 0.5 * h);
+    if (st.tr < st.tmin) {
       return true;
-    }
-    if (sig > 0.0) {
-      composite(st, sig * h, col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0, t - 0.5 * h, t + 0.5 * h);
-      if (st.tr < st.tmin) {
-        return true;
-      }
     }
   }
   return false;
 }
 
+/* One loop over the samples of all pieces (a nested piece / sample loop would keep the lanes
+ * of a SIMD group waiting on each other twice). Pieces lie between the sorted interval
+ * boundaries of all objects' walks (_cpu.merged_pieces). */
 void trace_mode(Ray r, inout State st)
 {
   Walk w[MAX_OBJ];
@@ -172,41 +182,45 @@ void trace_mode(Ray r, inout State st)
       p = min(p, ta[ob]);
     }
   }
-  /* pieces between the sorted interval boundaries of all objects (merged_pieces) */
+  int ncov = 0, n = 0, i = 0;
+  float q = p, h = 0.0;
   while (true) {
-    bool any = false;
-    float first = INF;
-    for (int ob = 0; ob < n_obj; ob++) {
-      while (alive[ob] && tb[ob] <= p) {
-        alive[ob] = walk_next(w[ob], ta[ob], tb[ob], cid[ob]);
+    if (i >= n) { /* the next piece [p, q] */
+      p = q;
+      bool any = false;
+      float first = INF;
+      for (int ob = 0; ob < n_obj; ob++) {
+        while (alive[ob] && tb[ob] <= p) {
+          alive[ob] = walk_next(w[ob], ta[ob], tb[ob], cid[ob]);
+        }
+        if (alive[ob]) {
+          any = true;
+          first = min(first, ta[ob]);
+        }
       }
-      if (alive[ob]) {
-        any = true;
-        first = min(first, ta[ob]);
+      if (!any) {
+        return;
       }
+      p = max(p, first);
+      q = INF;
+      ncov = 0;
+      for (int ob = 0; ob < n_obj; ob++) {
+        if (!alive[ob]) {
+          continue;
+        }
+        q = min(q, ta[ob] > p ? ta[ob] : tb[ob]);
+        if (ta[ob] <= p) {
+          cov_obj[ncov] = ob;
+          cov_cell[ncov] = cid[ob];
+          ncov++;
+        }
+      }
+      piece_start(p, q, ncov, n, h);
+      i = 0;
     }
-    if (!any) {
+    if (reference_sample(st, p + (float(i) + 0.5) * h, p, h, ncov)) {
       return;
     }
-    if (first > p) {
-      p = first;
-    }
-    float q = INF;
-    int ncov = 0;
-    for (int ob = 0; ob < n_obj; ob++) {
-      if (!alive[ob]) {
-        continue;
-      }
-      q = min(q, ta[ob] > p ? ta[ob] : tb[ob]);
-      if (ta[ob] <= p) {
-        cov_obj[ncov] = ob;
-        cov_cell[ncov] = cid[ob];
-        ncov++;
-      }
-    }
-    if (reference_piece(st, p, q, ncov)) {
-      return;
-    }
-    p = q;
+    i++;
   }
 }
