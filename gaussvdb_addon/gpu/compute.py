@@ -23,8 +23,20 @@ def glsl(name):
 
 
 def source(glsl_file):
-    """The compute source: common, the mode's file, main (the create-info adds the resources)."""
-    return "\n".join(glsl(n) for n in ("common.glsl", glsl_file, "main.glsl"))
+    """The compute source: common, the mode's file (or files, in order), main (the create-info
+    adds the resources)."""
+    files = (glsl_file,) if isinstance(glsl_file, str) else tuple(glsl_file)
+    return "\n".join(glsl(n) for n in ("common.glsl",) + files + ("main.glsl",))
+
+
+def group(spec):
+    """The work group's side for a mode: GROUP, or 1 for modes marked ONE_PER_GROUP on llvmpipe
+    (its 8x8 groups ran the particles sweep's divergent loops wrongly: whole tiles lost chords)."""
+    import gpu
+
+    if "ONE_PER_GROUP" in spec.defines and "llvmpipe" in gpu.platform.renderer_get():
+        return 1
+    return GROUP
 
 
 def _kind(a):
@@ -62,7 +74,8 @@ def shader(mode, spec, textures, ints):
     info.define(f"MODE_{mode}", "1")
     for d in spec.defines:
         info.define(d, "1")
-    info.local_group_size(GROUP, GROUP)
+    side = group(spec)
+    info.local_group_size(side, side)
     info.compute_source(source(spec.glsl))
     sh = gpu.shader.create_from_info(info)
     _SHADERS[key] = sh
@@ -88,9 +101,9 @@ def upload(textures):
     return out
 
 
-def dispatch(sh, textures, ints, rows, cols, out=None):
+def dispatch(sh, textures, ints, rows, cols, out=None, side=GROUP):
     """Draw rows [r0, r1) x columns [c0, c1) into (new, or the given) output textures;
-    returns (rgba, dv) textures (nr x nc)."""
+    returns (rgba, dv) textures (nr x nc). side: the shader's work group (group(spec))."""
     import gpu
 
     (r0, r1), (c0, c1) = rows, cols
@@ -105,8 +118,11 @@ def dispatch(sh, textures, ints, rows, cols, out=None):
     sh.image("out_dv", out[1])
     vals = dict(ints, row0=r0, col0=c0, nrows=nr, ncols=nc)
     for name, v in vals.items():
-        sh.uniform_int(name, int(v))
-    gpu.compute.dispatch(sh, -(-nc // GROUP), -(-nr // GROUP), 1)
+        try:
+            sh.uniform_int(name, int(v))
+        except ValueError:  # a push constant this mode never reads: the compiler dropped it
+            pass
+    gpu.compute.dispatch(sh, -(-nc // side), -(-nr // side), 1)
     return out
 
 

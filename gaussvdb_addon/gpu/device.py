@@ -17,13 +17,17 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import gpu_layout
+from ...kernels.render import gpu_layout, gpu_layout_gauss  # the latter adds the Gaussian modes to MODE_TABLES
 from . import compute, context
 
-# glsl: the mode's file; defines: extra #defines (WALK: common.glsl's leaf walk and its tables);
-# lit: whether it shades lit volumes (else such frames go to the CPU device)
+# glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
+# ONE_PER_GROUP: one pixel per work group on llvmpipe); lit: whether it shades lit volumes (else
+# such frames go to the CPU device)
 ModeSpec = namedtuple("ModeSpec", "glsl defines lit")
-MODES = {"reference": ModeSpec("reference.glsl", ("WALK",), True)}
+MODES = {"reference": ModeSpec("reference.glsl", ("WALK",), True),
+         "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",), False),
+         "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP"), False),
+         "paper": ModeSpec(("gauss.glsl", "paper.glsl"), (), False)}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 
 
@@ -60,10 +64,24 @@ class GPUDevice(kdevice.Device):
     @staticmethod
     def fallback(frame):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
+        if (np.asarray(frame.objects.ctf) >= 0).any():
+            return "an object coloured by a second grid"
         spec = MODES.get(Mode(int(frame.mode)).name.lower())
         if spec is not None and not spec.lit and (np.asarray(frame.objects.lit) != 0).any():
             return "lit volumes"
+        if int(frame.mode) <= Mode.PAPER:
+            return gpu_layout_gauss.unsupported(frame)
         return None
+
+    def _overflow(self, scene, camera, tf, rgba, dv, r0, c0):
+        """Redraw on the CPU device the screen tiles with a ray that ran out of hit slots."""
+        tiles = gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0)
+        for (a, b), (c, d) in tiles:
+            out = self.cpu.render(scene, camera, tf, rows=(a, b), cols=(c, d))
+            rgba[a - r0:b - r0, c - c0:d - c0] = out["Combined"]
+            dv[a - r0:b - r0, c - c0:d - c0, 0] = out.get("Depth", 1e10)
+            dv[a - r0:b - r0, c - c0:d - c0, 1] = out.get("Value", 0.0)
+        return len(tiles)
 
     def _spec(self, frame):
         name = Mode(int(frame.mode)).name.lower()
@@ -97,7 +115,7 @@ class GPUDevice(kdevice.Device):
 
         name, spec, arrays, tex, ints = self._tables(frame)
         sh = compute.shader(name, spec, arrays, ints)
-        self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out)
+        self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
         return self._out
 
@@ -140,6 +158,7 @@ class GPUDevice(kdevice.Device):
 
         if nr and nc:
             context.run(draw)
+            self.stats["overflow_tiles"] = self._overflow(scene, camera, tf, rgba, dv, r0, c0)
         self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
                           segments=0.0, cancelled=bool(cancelled), threads=1, gpu=self.renderer)
         self.stats.pop("fallback", None)

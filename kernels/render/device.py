@@ -285,30 +285,9 @@ class CPUDevice(Device):
         m = A.g_mu.shape[0]
         if not self.screen_tiles or m == 0 or mode > Mode.FIELD:
             return none
-        cam = camera.packed()
-        rot, pos = camera.basis()
-        rinv = np.linalg.inv(rot)
-        n = len(scene.objects)
-        cmat = np.zeros((n, 3, 4))
-        onorm = np.zeros(n)
-        for k, o in enumerate(scene.objects):
-            mw = np.asarray(o.matrix_world, np.float64)
-            cmat[k, :, :3] = rinv @ mw[:3, :3]
-            cmat[k, :, 3] = rinv @ (mw[:3, 3] - pos)
-            onorm[k] = np.linalg.norm(mw[:3, :3], 2)
-        box = np.empty((m, 4), np.int32)
-        lb = np.empty(m)
-        kt = self._kt
-        kt.gauss_footprints(cam, cmat, onorm, A.g_mu, A.g_inv, A.g_obj, g_w, float(scene.support_k), box, lb)
-        ntx = (camera.width + kt.TILE - 1) // kt.TILE
-        nty = (camera.height + kt.TILE - 1) // kt.TILE
-        cnt = kt.tile_counts(box, ntx, nty)
-        start = np.zeros(ntx * nty + 1, np.int64)
-        np.cumsum(cnt.sum(0), out=start[1:])
-        if start[-1] > MAX_TILE_ENTRIES:
-            return none
-        items, masks = kt.tile_fill(box, lb, cnt, start, ntx)
-        return start, items, masks, lb
+        i2w = [np.asarray(o.matrix_world, np.float64) for o in scene.objects]
+        tiles = screen_tiles(camera.packed(), i2w, A.g_mu, A.g_inv, A.g_obj, g_w, float(scene.support_k))
+        return none if tiles is None else tiles
 
     def _frame_key(self, mode, scene, camera, prep):
         """What a frame's state depends on besides the geometry (sync count): mode, tile switch,
@@ -493,6 +472,37 @@ class CPUDevice(Device):
         if "Value" in scene.passes:
             out["Value"] = value
         return out
+
+
+def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k):
+    """The screen-tile lists (_cpu_tiles) of Gaussians with weights g_w for the packed camera cam
+    and the objects' index -> world matrices i2w: starts, ids, pixel masks and each Gaussian's
+    entry bound; None when they would pass MAX_TILE_ENTRIES."""
+    from . import _cpu_tiles as kt
+
+    rot = np.asarray(cam[7:16], np.float64).reshape(3, 3)
+    pos = np.asarray(cam[16:19], np.float64)
+    rinv = np.linalg.inv(rot)
+    n = len(i2w)
+    cmat = np.zeros((n, 3, 4))
+    onorm = np.zeros(n)
+    for j, mw in enumerate(i2w):
+        cmat[j, :, :3] = rinv @ mw[:3, :3]
+        cmat[j, :, 3] = rinv @ (mw[:3, 3] - pos)
+        onorm[j] = np.linalg.norm(mw[:3, :3], 2)
+    m = g_mu.shape[0]
+    box = np.empty((m, 4), np.int32)
+    lb = np.empty(m)
+    kt.gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, float(k), box, lb)
+    ntx = (int(cam[1]) + kt.TILE - 1) // kt.TILE
+    nty = (int(cam[2]) + kt.TILE - 1) // kt.TILE
+    cnt = kt.tile_counts(box, ntx, nty)
+    start = np.zeros(ntx * nty + 1, np.int64)
+    np.cumsum(cnt.sum(0), out=start[1:])
+    if start[-1] > MAX_TILE_ENTRIES:
+        return None
+    items, masks = kt.tile_fill(box, lb, cnt, start, ntx)
+    return start, items, masks, lb
 
 
 class _Frame:

@@ -175,3 +175,4 @@ MODE_TABLES = {"reference": (reference_geometry, reference_frame)}
 
 def nbytes(tables):
     return int(sum(a.nbytes for a in tables.textures.values()))
+

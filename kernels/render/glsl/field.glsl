@@ -1,0 +1,259 @@
+/* Field mode (needs gauss.glsl before it; _cpu_gauss.trace_tiles + sweep_field): the ray tests
+ * its screen tile's Gaussians in list order and samples the summed field at the midpoints
+ * t_i = (i + 1/2) h (h: the finest object step along the ray) once every chord entering before
+ * t_i is known. Each active chord's value is evaluated at the sample (the CPU carries it by two
+ * multiplications; the same value). Surfaces (object kind 2): the mixture's first rise through
+ * 0.5 between samples, placed by the secant; the normal from the Gaussians around the hit
+ * (mixture_normal). Entries wait in PCAP slots, active chords in PCAP more; a ray that needs
+ * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. */
+#define NORMAL_BLUR 1.0
+#define NORMAL_REACH 4.0
+
+float f_e[PCAP], f_ts[PCAP], f_hq[PCAP], f_ha[PCAP];  /* waiting entries, by slot */
+float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP];  /* active chords */
+int a_ob[PCAP];
+int nact, isamp;
+float hstep, f_cend;
+float sprev_v[MAX_OBJ];
+int sprev_i[MAX_OBJ];
+bool f_over;
+
+/* object ob's surface at th inside the sample at ti: the sample's volumes up to th, then the hit */
+void mixture_hit(inout State st, int ob, float th, float ti, float sig, vec3 col, float vs, float vw)
+{
+  float t0 = ti - 0.5 * hstep;
+  if (sig > 0.0 && th > t0) {
+    composite(st, sig * (th - t0), col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0, t0, th);
+  }
+  surface_hit(st, ob, th, vec3(0.0), g_ro[ob] + th * g_rd[ob]);
+}
+
+/* The samples before horizon (see the file's comment). True once the ray ends (opaque, a
+ * surface, or f_over). */
+bool sweep_field(inout State st, float horizon)
+{
+  for (int it = 0; it < 100000000; it++) {
+    float ti = (float(isamp) + 0.5) * hstep;
+    if (!(ti < horizon)) {
+      break;
+    }
+    while (q0 < nq && q_t[q0] <= ti) {
+      int h = q_h[q0], g = q_g[q0];
+      q0++;
+      if (nact == PCAP) {
+        f_over = true;
+        return true;
+      }
+      a_e[nact] = f_e[h];
+      a_ts[nact] = f_ts[h];
+      a_hq[nact] = f_hq[h];
+      a_ha[nact] = f_ha[h];
+      a_w[nact] = g_rec1(g).z;
+      a_ob[nact] = n_obj == 1 ? 0 : g_object(g);
+      nact++;
+      f_cend = max(f_cend, f_e[h]);
+      slot_free(h);
+    }
+    if (nact > 0 && ti >= f_cend) {
+      nact = 0; /* every active chord has ended */
+    }
+    if (nact == 0) {
+      if (q0 == nq || !(q_t[q0] < horizon)) { /* nothing known ahead: resume at the horizon */
+        if (horizon < INF) {
+          isamp = max(isamp, int(ceil(horizon / hstep - 0.5)));
+        }
+        break;
+      }
+      isamp = max(isamp + 1, int(ceil(q_t[q0] / hstep - 0.5)));
+      continue;
+    }
+    float sv[MAX_OBJ];
+    bool sact[MAX_OBJ];
+    for (int ob = 0; ob < n_obj; ob++) {
+      sv[ob] = 0.0;
+      sact[ob] = false;
+    }
+    int k = 0;
+    while (k < nact) {
+      if (a_e[k] <= ti) { /* ended before this sample: drop it */
+        nact--;
+        a_e[k] = a_e[nact];
+        a_ts[k] = a_ts[nact];
+        a_hq[k] = a_hq[nact];
+        a_ha[k] = a_ha[nact];
+        a_w[k] = a_w[nact];
+        a_ob[k] = a_ob[nact];
+        continue;
+      }
+      float d = ti - a_ts[k];
+      sv[a_ob[k]] += a_w[k] * exp(-(a_hq[k] + a_ha[k] * d * d));
+      sact[a_ob[k]] = true;
+      k++;
+    }
+    if (n_obj == 1) {
+      sact[0] = true;
+    }
+    float sig = 0.0, vs = 0.0, vw = 0.0, bt = INF;
+    vec3 col = vec3(0.0);
+    int best = -1;
+    for (int ob = 0; ob < n_obj; ob++) {
+      if (!sact[ob]) {
+        continue;
+      }
+      int kind = int(obj_texel(ob, 3).x);
+      if (kind == 2) {
+        float prev = sprev_i[ob] == isamp - 1 ? sprev_v[ob] : 0.0; /* none active: 0 */
+        sprev_v[ob] = sv[ob];
+        sprev_i[ob] = isamp;
+        if (sv[ob] >= 0.5 && prev < 0.5) {
+          float th = ti - hstep + (0.5 - prev) / (sv[ob] - prev) * hstep;
+          if (th < bt) {
+            bt = th;
+            best = ob;
+          }
+        }
+        continue;
+      }
+      float sg, val;
+      vec3 c;
+      sample_color(ob, kind, sv[ob], g_ro[ob] + ti * g_rd[ob], sg, c, val);
+      if (sg > 0.0) {
+        sig += sg;
+        col += sg * c;
+        if (!isnan(val)) {
+          vs += sg * val;
+          vw += sg;
+        }
+      }
+    }
+    if (best >= 0) {
+      mixture_hit(st, best, bt, ti, sig, col, vs, vw);
+      return true;
+    }
+    isamp++;
+    if (sig > 0.0) {
+      composite(st, sig * hstep, col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0, ti - 0.5 * hstep,
+                ti + 0.5 * hstep);
+      if (st.tr < st.tmin) {
+        return true;
+      }
+    }
+  }
+  return false;
+}
+
+/* -gradient of the hit object's mixture blurred by NORMAL_BLUR, from the Gaussians centred in the
+ * leaf cells within NORMAL_REACH of the hit (_cpu_surface.mixture_normal) */
+void mixture_normal(inout State st)
+{
+  int ob = st.hit_ob;
+  vec3 x = g_ro[ob] + st.hit_t * g_rd[ob];
+  ivec3 lo = ivec3(floor((x + 0.5 - NORMAL_REACH) / LEAF));
+  ivec3 hi = ivec3(floor((x + 0.5 + NORMAL_REACH) / LEAF));
+  Walk w;
+  vec4 a = obj_texel(ob, 7), b = obj_texel(ob, 8);
+  w.nmin = ivec3(a.xyz);
+  w.noff = int(a.w);
+  w.ndims = ivec3(b.xyz);
+  vec3 grad = vec3(0.0);
+  for (int cx = lo.x; cx <= hi.x; cx++) {
+    for (int cy = lo.y; cy <= hi.y; cy++) {
+      for (int cz = lo.z; cz <= hi.z; cz++) {
+        ivec3 c = ivec3(cx, cy, cz);
+        ivec3 n = ivec3(floor_div16(cx), floor_div16(cy), floor_div16(cz));
+        if (any(lessThan(n, w.nmin)) || any(greaterThanEqual(n, w.nmin + w.ndims))) {
+          continue;
+        }
+        int cid = cell_at(w, c);
+        if (cid < 0) {
+          continue;
+        }
+        int j1 = iscalar(c_start, cid + 1);
+        for (int j = iscalar(c_start, cid); j < j1; j++) {
+          int g = iscalar(c_items, j);
+          vec4 r0 = g_rec0(g), r1 = g_rec1(g);
+          if (ivec3(floor((r0.xyz + 0.5) / LEAF)) != c || r1.z == 0.0) {
+            continue; /* counted in the cell of its centre */
+          }
+          vec3 iv = vec3(r0.w, r1.x, r1.y);
+          vec3 ib = 1.0 / sqrt(1.0 / (iv * iv) + NORMAL_BLUR);
+          vec3 u = (x - r0.xyz) * ib;
+          float q = dot(u, u);
+          if (q > 16.0) {
+            continue;
+          }
+          float e = r1.z * ib.x * ib.y * ib.z / (iv.x * iv.y * iv.z) * exp(-0.5 * q);
+          grad += e * u * ib;
+        }
+      }
+    }
+  }
+  st.hit_g = grad;
+}
+
+bool trace_tiles(float tn, float tf, inout State st)
+{
+  float k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
+  ivec3 tb = pixel_tile();
+  int t1 = tile_first(tb.x + 1);
+  slots_start();
+  nact = 0;
+  isamp = 0;
+  f_cend = -INF;
+  f_over = false;
+  hstep = INF;
+  for (int ob = 0; ob < n_obj; ob++) {
+    hstep = min(hstep, obj_texel(ob, 3).z / length(g_rd[ob]));
+    sprev_i[ob] = -1000000000;
+    sprev_v[ob] = 0.0;
+  }
+  int nh = 0, swept = 0;
+  for (int q = tile_first(tb.x); q < t1; q++) {
+    int g = tile_entry(q, tb.y);
+    if (g < 0) {
+      continue;
+    }
+    float lbg = g_rec1(g).w;
+    if (nh >= swept + BATCH && q0 < nq && q_t[q0] < lbg) {
+      swept = nh;
+      if (sweep_field(st, lbg)) {
+        return !f_over;
+      }
+    }
+    int ob = n_obj == 1 ? 0 : g_object(g);
+    float aa, qq, ra;
+    vec4 c = chord(g, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
+    if (!(c.y > c.x)) {
+      continue;
+    }
+    if (nfree == 0) {
+      if (sweep_field(st, lbg)) {
+        return !f_over;
+      }
+      if (nfree == 0) {
+        return false;
+      }
+    }
+    nfree--;
+    int h = fre[nfree];
+    f_e[h] = c.y;
+    f_ts[h] = c.z;
+    f_hq[h] = 0.5 * qq;
+    f_ha[h] = 0.5 * aa;
+    queue_insert(c.x, g, h);
+    nh++;
+  }
+  sweep_field(st, INF);
+  return !f_over;
+}
+
+void trace_mode(Ray r, inout State st)
+{
+  if (!trace_tiles(r.tn, r.tf, st)) {
+    st.depth = OVERFLOW_DEPTH; /* the device draws this pixel's tile on the CPU */
+    return;
+  }
+  if (st.hit) {
+    mixture_normal(st);
+  }
+}

@@ -1,0 +1,131 @@
+/* The Gaussian modes' shared pieces (particles, field, paper): the per-Gaussian tables, the
+ * screen-tile lists (gpu_layout_gauss), erf, and the exact ray/support test (_cpu_chords.chord).
+ * Float32 throughout; the CPU device's float64 image is matched within 50 dB, not bit for bit. */
+#define TILE 8
+#define SET_TAU_MAX 1
+#define SET_K 2
+#define OVERFLOW_DEPTH (-2e10)  /* gpu_layout_gauss.OVERFLOW_DEPTH */
+#define SQRT_HALF 0.70710678
+#define SQRT_HALF_PI 1.25331414
+#define TWO_OVER_SQRT_PI 1.12837917
+
+/* Gaussian g: centre, 1/sigma, weight w, column 7 (entry bound, or paper's w x volfac) */
+vec4 g_rec0(int g) { return texel(g_rec, 2 * g); }
+vec4 g_rec1(int g) { return texel(g_rec, 2 * g + 1); }
+vec3 g_color(int g) { return texel(g_aux, 2 * g).rgb; }
+float g_value(int g) { return texel(g_aux, 2 * g).a; }  /* 0 when NaN */
+float g_vweight(int g) { return texel(g_aux, 2 * g + 1).r; }  /* 0 when NaN */
+int g_object(int g) { return int(texel(g_aux, 2 * g + 1).g); }
+
+int tile_first(int tl) { return int(scalar(t_start, tl)); }
+/* entry q of the tile lists: its Gaussian, or -1 when pixel bit `bit` is not in its mask */
+int tile_entry(int q, int bit) {
+  vec4 e = texel(t_ent, q);
+  int piece = bit / 22;
+  int m = int(piece == 0 ? e.y : (piece == 1 ? e.z : e.w));
+  return ((m >> (bit - 22 * piece)) & 1) != 0 ? int(e.x) : -1;
+}
+
+/* erfc with fractional error < 1.2e-7 everywhere (Numerical Recipes' Chebyshev fit) */
+float erfc_g(float x) {
+  float z = abs(x);
+  float t = 1.0 / (1.0 + 0.5 * z);
+  float r = t * exp(-z * z - 1.26551223 + t * (1.00002368 + t * (0.37409196 + t * (0.09678418
+            + t * (-0.18628806 + t * (0.27886807 + t * (-1.13520398 + t * (1.48851587
+            + t * (-0.82215223 + t * 0.17087277)))))))));
+  return x >= 0.0 ? r : 2.0 - r;
+}
+float erf_g(float x) { return 1.0 - erfc_g(x); }
+/* erf(u1) - erf(u0), u0 <= u1, h = u1 - u0 formed by the caller (see _cpu_math.erf_span) */
+float erf_span(float u0, float u1, float h) {
+  float m = 0.5 * (u0 + u1);
+  if (h * max(1.0, abs(m)) < 1e-2) {
+    float m2 = m * m, h2 = h * h;
+    float series = 1.0 + (4.0 * m2 - 2.0) * h2 / 24.0 + (16.0 * m2 * m2 - 48.0 * m2 + 12.0) * h2 * h2 / 1920.0;
+    return TWO_OVER_SQRT_PI * h * exp(-m2) * series;
+  }
+  if (u0 >= 0.0) return erfc_g(u0) - erfc_g(u1);
+  if (u1 <= 0.0) return erfc_g(-u1) - erfc_g(-u0);
+  return erf_g(u1) - erf_g(u0);
+}
+
+/* Gaussian g against the index-space ray o + t d (_cpu_chords.chord): returns (s, e, ts, pk)
+ * with the chord clipped to [tn, tf] (a miss: s >= e); aa = |d'|^2, qq its closest squared
+ * distance, ra = 1 / |d'|. */
+vec4 chord(int g, vec3 o, vec3 d, float k2, float tn, float tf, out float aa, out float qq, out float ra) {
+  vec4 r0 = g_rec0(g), r1 = g_rec1(g);
+  vec3 iv = vec3(r0.w, r1.x, r1.y);
+  vec3 w = (o - r0.xyz) * iv;
+  vec3 v = d * iv;
+  aa = dot(v, v);
+  float ia = 1.0 / aa;
+  float ts = -dot(w, v) * ia;
+  vec3 p = w + ts * v;
+  qq = dot(p, p);
+  ra = sqrt(ia);
+  float hw = sqrt(max(k2 - qq, 0.0)) * ra;
+  float s = qq < k2 ? max(ts - hw, tn) : INF;
+  float pk = r1.z * exp(-0.5 * min(qq, k2));
+  return vec4(s, min(ts + hw, tf), ts, pk);
+}
+
+/* -- the hits of one ray (particles, field): PCAP slots, a free list and the entry queue ----- */
+#ifndef PCAP
+#define PCAP 160
+#endif
+#ifndef BATCH
+#define BATCH 32
+#endif
+float q_t[PCAP];  /* entry queue [q0, nq), sorted by (t, Gaussian id): times, ids, slots */
+int q_g[PCAP], q_h[PCAP];
+int fre[PCAP];
+int q0, nq, nfree;
+
+void slots_start()
+{
+  q0 = 0;
+  nq = 0;
+  nfree = PCAP;
+  for (int k = 0; k < PCAP; k++) {
+    fre[k] = PCAP - 1 - k;
+  }
+}
+
+void slot_free(int h)
+{
+  fre[nfree] = h;
+  nfree++;
+}
+
+/* from the back (_cpu_chords.queue_insert): entries arrive nearly in order */
+void queue_insert(float t, int g, int h)
+{
+  if (nq == PCAP) { /* the head has moved on: shift the queue down (a slot was free: room) */
+    for (int k = q0; k < nq; k++) {
+      q_t[k - q0] = q_t[k];
+      q_g[k - q0] = q_g[k];
+      q_h[k - q0] = q_h[k];
+    }
+    nq -= q0;
+    q0 = 0;
+  }
+  int j = nq;
+  while (j > q0 && (t < q_t[j - 1] || (t == q_t[j - 1] && g < q_g[j - 1]))) {
+    q_t[j] = q_t[j - 1];
+    q_g[j] = q_g[j - 1];
+    q_h[j] = q_h[j - 1];
+    j--;
+  }
+  q_t[j] = t;
+  q_g[j] = g;
+  q_h[j] = h;
+  nq++;
+}
+
+/* the ray's screen tile and its bit in the tile's pixel masks */
+ivec3 pixel_tile()
+{
+  ivec2 p = ivec2(gl_GlobalInvocationID.xy) + ivec2(col0, row0);
+  int ntx = (int(fr(FR_CAM + 1)) + TILE - 1) / TILE;
+  return ivec3((p.y / TILE) * ntx + p.x / TILE, (p.y % TILE) * TILE + p.x % TILE, 0);
+}

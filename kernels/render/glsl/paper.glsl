@@ -1,0 +1,98 @@
+/* Paper mode (needs gauss.glsl before it; _cpu_pieces.paper_piece): the closest Gaussian entering
+ * at or after the current origin (smallest entry, ties by id), fixed midpoint steps over its
+ * chord, A = w volfac rho dt, C += T c A, T *= exp(-A), continue after its exit; overlapping
+ * Gaussians entered earlier are ignored. The candidates are the screen tile's (lists built for
+ * this mode with its weights); a chord counts where the CPU's leaf walk would meet it: entering
+ * inside [max(tn, clip start), min(tf, clip end)) of its object. One scan of the tile keeps the
+ * KB earliest entries at or after the origin; the next scan starts where they ran out. */
+#define SET_PAPER_STEPS 7
+#define SET_PAPER_DEPTH 8
+#ifndef KB
+#define KB 16
+#endif
+
+float b_t0[KB], b_t1[KB];
+int b_g[KB];
+
+void trace_mode(Ray r, inout State st)
+{
+  float k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
+  int nsteps = int(fr(FR_SET + SET_PAPER_STEPS));
+  float maxd = fr(FR_SET + SET_PAPER_DEPTH);
+  ivec3 tb = pixel_tile();
+  int q0 = tile_first(tb.x), q1 = tile_first(tb.x + 1);
+  float pcur = -INF, depth_n = 0.0;
+  bool more = true;
+  while (more && depth_n < maxd && st.tr >= st.tmin) {
+    int nb = 0;
+    for (int q = q0; q < q1; q++) {
+      int g = tile_entry(q, tb.y);
+      if (g < 0) {
+        continue;
+      }
+      int ob = n_obj == 1 ? 0 : g_object(g);
+      vec4 r0 = g_rec0(g), r1 = g_rec1(g);
+      vec3 iv = vec3(r0.w, r1.x, r1.y);
+      vec3 w = (g_ro[ob] - r0.xyz) * iv, v = g_rd[ob] * iv;
+      float a = dot(v, v);
+      float ts = -dot(w, v) / a;
+      vec3 p = w + ts * v;
+      float qq = dot(p, p);
+      if (qq >= k2) {
+        continue;
+      }
+      float hw = sqrt((k2 - qq) / a);
+      float e0 = max(ts - hw, g_rclip[ob].x), e1 = min(ts + hw, g_rclip[ob].y);
+      if (!(e1 > e0) || e0 < pcur || e0 < max(r.tn, g_rclip[ob].x) || e0 >= min(r.tf, g_rclip[ob].y)) {
+        continue;
+      }
+      if (nb == KB && !(e0 < b_t0[KB - 1] || (e0 == b_t0[KB - 1] && g < b_g[KB - 1]))) {
+        continue;
+      }
+      int j = nb < KB ? nb : KB - 1; /* insert, dropping the last when full */
+      while (j > 0 && (e0 < b_t0[j - 1] || (e0 == b_t0[j - 1] && g < b_g[j - 1]))) {
+        b_t0[j] = b_t0[j - 1];
+        b_t1[j] = b_t1[j - 1];
+        b_g[j] = b_g[j - 1];
+        j--;
+      }
+      b_t0[j] = e0;
+      b_t1[j] = e1;
+      b_g[j] = g;
+      nb = min(nb + 1, KB);
+    }
+    more = nb == KB; /* fewer: every candidate left was in the buffer */
+    for (int k = 0; k < nb; k++) {
+      if (depth_n >= maxd || st.tr < st.tmin) {
+        break;
+      }
+      if (b_t0[k] < pcur) {
+        continue; /* entered inside the last Gaussian drawn */
+      }
+      int g = b_g[k];
+      int ob = n_obj == 1 ? 0 : g_object(g);
+      vec4 r0 = g_rec0(g), r1 = g_rec1(g);
+      vec3 iv = vec3(r0.w, r1.x, r1.y);
+      vec3 col = g_color(g);
+      float val = g_value(g), vw = g_vweight(g);
+      float dt = (b_t1[k] - b_t0[k]) / float(nsteps);
+      for (int s = 0; s < nsteps; s++) {
+        float t = b_t0[k] + (float(s) + 0.5) * dt;
+        vec3 u = (g_ro[ob] + t * g_rd[ob] - r0.xyz) * iv;
+        float A = r1.w * exp(-0.5 * dot(u, u)) * dt;
+        float T = st.tr;
+        st.rad += T * col * A;
+        if (vw > 0.0) {
+          st.vsum += T * A * val;
+          st.vwt += T * A;
+        }
+        st.tr = T * exp(-A);
+        if (st.depth == BG_DEPTH && st.tr <= 0.5) {
+          st.depth = t;
+        }
+      }
+      depth_n += 1.0;
+      pcur = b_t1[k];
+    }
+  }
+}
