@@ -59,6 +59,14 @@ def clip_plane(text: str) -> tuple:
     return v[:3], v[3:]
 
 
+def direction(text: str) -> tuple:
+    """'dx,dy,dz' -> a non-zero world direction."""
+    v = _floats(text, 3, "dx,dy,dz")
+    if not any(v):
+        raise argparse.ArgumentTypeError(f"must not be zero, not {text!r}")
+    return v
+
+
 def clip_box(text: str) -> tuple:
     """'x0,y0,z0,x1,y1,z1' -> the world box's min and max corners (min < max on every axis)."""
     v = _floats(text, 6, "x0,y0,z0,x1,y1,z1")

@@ -1,7 +1,7 @@
 """`./gaussvdb render FILE.vdb|'DIR/name_####.vdb' [--frames A-B] [--grid G] [--vector-magnitude] [--lod PRESET]
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
 [--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI]
-[--level-set surface|shell] [--shading emission|lit] [--shadows] [--color-grid NAME
+[--view DX,DY,DZ] [--up X,Y,Z] [--level-set surface|shell] [--shading emission|lit] [--shadows] [--color-grid NAME
 [--color-map NAME]] [--device cpu|gpu] [--json]`
 
 Imports one grid through the importer, frames a camera on its world box, sets the Standard view
@@ -69,6 +69,10 @@ def parse(argv):
     p.add_argument("--shading", default="emission", choices=("emission", "lit"),
                    help="volumes glow (emission-absorption) or are lit by the scene's lights "
                         "(a headlight here) by their gradient")
+    p.add_argument("--view", type=cli_errors.direction, default=VIEW, metavar="DX,DY,DZ",
+                   help="world viewing direction, camera towards the box (default 0.35,1,-0.3)")
+    p.add_argument("--up", type=cli_errors.direction, default=(0.0, 0.0, 1.0), metavar="X,Y,Z",
+                   help="the world up of the image (default +Z; 0,1,0 for y-up data)")
     p.add_argument("--shadows", action="store_true",
                    help="lit volumes: a sun from above lights them through the medium (the "
                         "headlight casts no shadows)")
@@ -116,7 +120,7 @@ def build_scene(bpy, objs, args, box=None):
     boxes = [(box or world_box)(o) for o in objs]
     lo = np.min([b[0] for b in boxes], axis=0)
     hi = np.max([b[1] for b in boxes], axis=0)
-    cam = Camera.frame_box(lo, hi, args.width, args.height, direction=VIEW)
+    cam = Camera.frame_box(lo, hi, args.width, args.height, direction=args.view, up=args.up)
     data = bpy.data.cameras.new("GaussVDB Camera")
     data.sensor_fit = "AUTO"
     data.sensor_width = 36.0

@@ -35,7 +35,8 @@ def mni_cut(path):
 # name -> (data file, render options): what each picture shows
 IMAGES = {
     "bunny_lit.png": ("bunny_ls_256.vdb", ["--lod", "high", "--mode", "field",
-                                           "--level-set", "surface", "--colormap", "viridis"]),
+                                           "--level-set", "surface", "--colormap", "viridis",
+                                           "--view", "0.3,-0.25,-1", "--up", "0,1,0"]),  # y-up data
     "fire_temperature.png": ("mantaflow_fire_r96_f035.vdb",
                              ["--grid", "density", "--color-grid", "temperature",
                               "--color-map", "inferno", "--lod", "high", "--mode", "field"]),

@@ -96,6 +96,9 @@ CASES = [
     # render: options
     (["render", S, "--lod", "ultra"], 2, ["--lod", "'ultra'", "merged"], True),
     (["render", S, "--size", "0x10"], 2, ["--size", "0x10"], True),
+    (["render", S, "--view", "0,0,0"], 2, ["--view", "must not be zero"], True),
+    (["render", S, "--up", "1,2"], 2, ["--up", "1,2"], True),
+    (["convert", S, "--merge-check", "maybe"], 2, ["--merge-check", "on or off"], True),
     (["render", S, "--size", "abc"], 2, ["--size", "abc"], True),
     (["render", S, "--threads", "-3"], 2, ["--threads", "-3"], True),
     (["render", S, "--density", "-1"], 2, ["--density", "-1"], True),
