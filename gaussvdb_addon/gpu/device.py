@@ -6,7 +6,7 @@ rows and a readback; ``render_texture`` leaves the image on the GPU (the viewpor
 Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, inout State st)``,
 its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
 device does not draw (lit volumes in a mode without ``lit``; modes without an entry) are said in
-``fallback(frame)``: lit frames go to the CPU device, missing modes raise.
+``fallback(frame)``: frames the GPU cannot draw exactly (see there) go to the CPU device.
 """
 from __future__ import annotations
 

@@ -131,12 +131,19 @@ def test_lit_volumes_match_the_cpu_device(gpu, cpu, shadows):
     assert db >= MIN_DB, f"PSNR {db:.1f} dB"
 
 
-def test_a_mode_not_on_the_gpu_yet_says_so(gpu):
+def test_a_frame_the_gpu_cannot_draw_goes_to_the_cpu(gpu):
+    """An object coloured by a second grid is not on the GPU yet: the device draws the frame on the
+    CPU (the same image) and says why."""
     from kernels.render.synthetic import gaussian_set
 
-    sc = RenderScene([RenderObject(gaussian_set([[0.0, 0.0, 0.0]], 1.0, [1.0], [1.0]))], mode="paper")
-    with pytest.raises(ValueError, match="not yet on the GPU device"):
-        gpu.render(sc, Camera.frame_box([-3] * 3, [3] * 3, 8, 8), TF)
+    gs = gaussian_set([[0.0, 0.0, 0.0], [1.0, 0.5, 0.0]], 1.0, [1.0, 0.5], [1.0, 1.0])
+    gs.color_values = np.array([0.2, 0.9], np.float32)
+    obj = RenderObject(gs, color_tf=TransferFunction.from_colormap("inferno", 0.0, 1.0))
+    sc = RenderScene([obj], mode="particles")
+    cam = Camera.frame_box([-3] * 3, [3] * 3, 8, 8)
+    got = gpu.render(sc, cam, TF)["Combined"]
+    assert gpu.stats["fallback"] == "an object coloured by a second grid"
+    np.testing.assert_array_equal(got, CPUDevice().render(sc, cam, TF)["Combined"])
 
 
 def test_viewport_draw_code_draws_the_device_image(gpu):
