@@ -75,7 +75,7 @@ from ._cpu_chords import (
     test_one,
     widen,
 )
-from ._cpu_lit import shade_sample
+from ._cpu_lit import lit_member, shade_sample
 from ._cpu_math import (
     HIT,
     HIT_NORMAL,
@@ -94,26 +94,6 @@ from ._cpu_math import (
 from ._cpu_surface import surface_hit
 from ._cpu_tiles import TILE
 from .scene import Mode
-
-
-@njit(**_hot)
-def lit_member(H, h, g, gauss, objs, xfer, scr):
-    """A lit volume's chord in particles mode: its colour shaded once, at the chord's closest
-    approach to the centre (shade_sample), on the mixture's gradient there: the Gaussian's own
-    (analytic) plus its neighbours', taken at its centre (gauss.grad, per sync)."""
-    ob = gauss.obj[g]
-    ts = H[h, TS]
-    ro, rd = scr.ro, scr.rd
-    x, y, z = ro[ob, 0] + ts * rd[ob, 0], ro[ob, 1] + ts * rd[ob, 1], ro[ob, 2] + ts * rd[ob, 2]
-    ix, iy, iz = gauss.inv[g, 0], gauss.inv[g, 1], gauss.inv[g, 2]
-    ux, uy, uz = (x - gauss.mu[g, 0]) * ix, (y - gauss.mu[g, 1]) * iy, (z - gauss.mu[g, 2]) * iz
-    e = -gauss.grad[g, 3] * math.exp(-0.5 * (ux * ux + uy * uy + uz * uz))
-    samp = scr.samp
-    samp[1], samp[2], samp[3] = H[h, CR], H[h, CG], H[h, CB]
-    shade_sample(samp, ob, gauss.grad[g, 0] + e * ux * ix, gauss.grad[g, 1] + e * uy * iy,
-                 gauss.grad[g, 2] + e * uz * iz, x, y, z, scr.wr, ts, objs, xfer.lights,
-                 xfer.settings, xfer.par[objs.tf[ob]])
-    H[h, CR], H[h, CG], H[h, CB] = samp[1], samp[2], samp[3]
 
 
 @njit(**_hot)

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
+from ._cpu_chords import CB, CG, CR, TS
 from ._cpu_math import _hot, _jit, erf_span, sample_color, whitened_chord
 from ._cpu_surface import brick_xyz, light_at, trilinear
 from ._cpu_walk import clip_interval, walk_object
@@ -107,6 +108,26 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
         g += eg * (kd * ndl * cg + spec)
         b += eb * (kd * ndl * cb + spec)
     samp[1], samp[2], samp[3] = r, g, b
+
+
+@njit(**_hot)
+def lit_member(H, h, g, gauss, objs, xfer, scr):
+    """A lit volume's chord in particles mode: its colour shaded once, at the chord's closest
+    approach to the centre (shade_sample), on the mixture's gradient there: the Gaussian's own
+    (analytic) plus its neighbours', taken at its centre (gauss.grad, per sync)."""
+    ob = gauss.obj[g]
+    ts = H[h, TS]
+    ro, rd = scr.ro, scr.rd
+    x, y, z = ro[ob, 0] + ts * rd[ob, 0], ro[ob, 1] + ts * rd[ob, 1], ro[ob, 2] + ts * rd[ob, 2]
+    ix, iy, iz = gauss.inv[g, 0], gauss.inv[g, 1], gauss.inv[g, 2]
+    ux, uy, uz = (x - gauss.mu[g, 0]) * ix, (y - gauss.mu[g, 1]) * iy, (z - gauss.mu[g, 2]) * iz
+    e = -gauss.grad[g, 3] * math.exp(-0.5 * (ux * ux + uy * uy + uz * uz))
+    samp = scr.samp
+    samp[1], samp[2], samp[3] = H[h, CR], H[h, CG], H[h, CB]
+    shade_sample(samp, ob, gauss.grad[g, 0] + e * ux * ix, gauss.grad[g, 1] + e * uy * iy,
+                 gauss.grad[g, 2] + e * uz * iz, x, y, z, scr.wr, ts, objs, xfer.lights,
+                 xfer.settings, xfer.par[objs.tf[ob]])
+    H[h, CR], H[h, CG], H[h, CB] = samp[1], samp[2], samp[3]
 
 
 @njit(**_hot)
@@ -272,3 +293,24 @@ def lit_gradients(mu, inv, fw, first, k):
                          part)
         out[s] = part
     return out
+
+
+def shadow_points(index_box, lit, n, nl):
+    """The shadow grids' rows (Objects.sh_grid: origin, spacing, dims, offset into sh_tau) of the
+    n objects, and their points (index space) with the object of each: SHADOW_POINTS along the
+    longest axis of each shadowed lit volume's index box (lit == LIT_SHADOWS), half a voxel out."""
+    grid = np.zeros((n, 8))
+    pts, owner = [], []
+    off = 0
+    for k in np.flatnonzero(lit == LIT_SHADOWS):
+        lo, hi = index_box[k]
+        lo, hi = lo - 0.5, hi + 0.5
+        s = max(float(np.max(hi - lo)) / (SHADOW_POINTS - 1), 1e-6)
+        dims = np.maximum(np.ceil((hi - lo) / s).astype(np.int64) + 1, 2)
+        axes = [lo[c] + s * np.arange(dims[c]) for c in range(3)]
+        p = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        grid[k] = [*lo, s, *dims, off * nl]
+        pts.append(p)
+        owner.append(np.full(p.shape[0], k, np.int32))
+        off += p.shape[0]
+    return grid, np.concatenate(pts), np.concatenate(owner)

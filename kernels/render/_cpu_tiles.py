@@ -205,3 +205,32 @@ def tile_fill(box, lb, cnt, start, ntx):
                 bits |= row << (TILE * y)
             masks[q] = bits
     return items, masks
+
+
+def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k, limit):
+    """The screen-tile lists (above) of Gaussians with weights g_w for the packed camera cam
+    and the objects' index -> world matrices i2w: starts, ids, pixel masks and each Gaussian's
+    entry bound; None when they would hold more than limit entries."""
+    rot = np.asarray(cam[7:16], np.float64).reshape(3, 3)
+    pos = np.asarray(cam[16:19], np.float64)
+    rinv = np.linalg.inv(rot)
+    n = len(i2w)
+    cmat = np.zeros((n, 3, 4))
+    onorm = np.zeros(n)
+    for j, mw in enumerate(i2w):
+        cmat[j, :, :3] = rinv @ mw[:3, :3]
+        cmat[j, :, 3] = rinv @ (mw[:3, 3] - pos)
+        onorm[j] = np.linalg.norm(mw[:3, :3], 2)
+    m = g_mu.shape[0]
+    box = np.empty((m, 4), np.int32)
+    lb = np.empty(m)
+    gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, float(k), box, lb)
+    ntx = (int(cam[1]) + TILE - 1) // TILE
+    nty = (int(cam[2]) + TILE - 1) // TILE
+    cnt = tile_counts(box, ntx, nty)
+    start = np.zeros(ntx * nty + 1, np.int64)
+    np.cumsum(cnt.sum(0), out=start[1:])
+    if start[-1] > limit:
+        return None
+    items, masks = tile_fill(box, lb, cnt, start, ntx)
+    return start, items, masks, lb

@@ -286,7 +286,8 @@ class CPUDevice(Device):
         if not self.screen_tiles or m == 0 or mode > Mode.FIELD:
             return none
         i2w = [np.asarray(o.matrix_world, np.float64) for o in scene.objects]
-        tiles = screen_tiles(camera.packed(), i2w, A.g_mu, A.g_inv, A.g_obj, g_w, float(scene.support_k))
+        tiles = self._kt.screen_tiles(camera.packed(), i2w, A.g_mu, A.g_inv, A.g_obj, g_w,
+                                      float(scene.support_k), MAX_TILE_ENTRIES)
         return none if tiles is None else tiles
 
     def _frame_key(self, mode, scene, camera, prep):
@@ -376,23 +377,9 @@ class CPUDevice(Device):
         (reference) or the Gaussians with the particles' extinction weights (closed form)."""
         from . import _cpu_lit
 
-        n = len(scene.objects)
-        grid = np.zeros((n, 8))
-        pts, owner = [], []
-        off = 0
+        grid, pts, owner = _cpu_lit.shadow_points(self.index_box, objects.lit, len(scene.objects),
+                                                  transfer.lights.shape[0])
         nl = transfer.lights.shape[0]
-        for k in np.flatnonzero(objects.lit == packing.LIT_SHADOWS):
-            lo, hi = self.index_box[k]
-            lo, hi = lo - 0.5, hi + 0.5
-            s = max(float(np.max(hi - lo)) / (_cpu_lit.SHADOW_POINTS - 1), 1e-6)
-            dims = np.maximum(np.ceil((hi - lo) / s).astype(np.int64) + 1, 2)
-            axes = [lo[c] + s * np.arange(dims[c]) for c in range(3)]
-            p = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-            grid[k] = [*lo, s, *dims, off * nl]
-            pts.append(p)
-            owner.append(np.full(p.shape[0], k, np.int32))
-            off += p.shape[0]
-        pts, owner = np.concatenate(pts), np.concatenate(owner)
         voxels = mode == Mode.REFERENCE
         wext = np.zeros(1) if voxels else self._gauss_weights(Mode.PARTICLES, tfs, objects.tf,
                                                               objects.kind, objects.ls)[0]
@@ -472,37 +459,6 @@ class CPUDevice(Device):
         if "Value" in scene.passes:
             out["Value"] = value
         return out
-
-
-def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k):
-    """The screen-tile lists (_cpu_tiles) of Gaussians with weights g_w for the packed camera cam
-    and the objects' index -> world matrices i2w: starts, ids, pixel masks and each Gaussian's
-    entry bound; None when they would pass MAX_TILE_ENTRIES."""
-    from . import _cpu_tiles as kt
-
-    rot = np.asarray(cam[7:16], np.float64).reshape(3, 3)
-    pos = np.asarray(cam[16:19], np.float64)
-    rinv = np.linalg.inv(rot)
-    n = len(i2w)
-    cmat = np.zeros((n, 3, 4))
-    onorm = np.zeros(n)
-    for j, mw in enumerate(i2w):
-        cmat[j, :, :3] = rinv @ mw[:3, :3]
-        cmat[j, :, 3] = rinv @ (mw[:3, 3] - pos)
-        onorm[j] = np.linalg.norm(mw[:3, :3], 2)
-    m = g_mu.shape[0]
-    box = np.empty((m, 4), np.int32)
-    lb = np.empty(m)
-    kt.gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, float(k), box, lb)
-    ntx = (int(cam[1]) + kt.TILE - 1) // kt.TILE
-    nty = (int(cam[2]) + kt.TILE - 1) // kt.TILE
-    cnt = kt.tile_counts(box, ntx, nty)
-    start = np.zeros(ntx * nty + 1, np.int64)
-    np.cumsum(cnt.sum(0), out=start[1:])
-    if start[-1] > MAX_TILE_ENTRIES:
-        return None
-    items, masks = kt.tile_fill(box, lb, cnt, start, ntx)
-    return start, items, masks, lb
 
 
 class _Frame:

@@ -74,7 +74,8 @@ def frame_tiles(frame):
     """(starts, ids, masks) the shader scans: the frame's own screen-tile lists (particles, field)
     or, for paper mode (whose CPU kernels walk the leaves), lists of the Gaussians with its
     weights built here once per frame; None when there are none (switched off, too many)."""
-    from .device import screen_tiles
+    from ._cpu_tiles import screen_tiles
+    from .device import MAX_TILE_ENTRIES
     from .packing import SET_K
     from .scene import Mode
 
@@ -84,7 +85,8 @@ def frame_tiles(frame):
     if not hasattr(frame, "gpu_tiles"):
         g = frame.gauss
         i2w = [np.linalg.inv(m) for m in frame.objects.w2i]
-        t = screen_tiles(frame.cam, i2w, g.mu, g.inv, g.obj, g.w, frame.transfer.settings[SET_K])
+        t = screen_tiles(frame.cam, i2w, g.mu, g.inv, g.obj, g.w, frame.transfer.settings[SET_K],
+                         MAX_TILE_ENTRIES)
         frame.gpu_tiles = None if t is None else t[:3]
     return frame.gpu_tiles
 
