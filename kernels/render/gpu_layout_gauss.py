@@ -7,9 +7,13 @@ channel k % 4 (``flat``). Integers travel as exact floats, so each must stay bel
 (``check_exact`` says where one does not; the device then draws that frame on the CPU).
 
 Tables (name: rows x columns, what):
-- g_rec (m x 8): centre (3), 1/sigma (3), this frame's weight w, and column 7: the tile lists'
-  entry bound (particles, field) or w x volfac (paper's per-step extinction factor).
-- g_aux (m x 8): colour (3), value (0 when NaN), value weight (1, or 0 when NaN), object.
+- g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table): texel 0 = centre (3) and
+  the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
+  factor); texel 1 = [1/sigma x | y as two halves, 1/sigma z | flags, w, value (0 when NaN)],
+  flags: object (bits 0-14) and "has a value" (bit 15). A packed word's high half is a normal
+  half float (1/sigma, range checked), so the word is a normal float32 (never NaN, Inf or
+  denormal) and survives upload and texelFetch bit for bit. Colours are not uploaded: the
+  shader takes them from the transfer function's LUT at the value (level sets: ls_color).
 - t_start (flat, tiles + 1): each screen tile's first entry.
 - t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
   20 bits (bit b of the mask: piece b // 22, bit b % 22).
@@ -24,6 +28,8 @@ import numpy as np
 from . import gpu_layout
 
 MASK_BITS = 22
+GAUSS_COLUMNS = {"g_rec": 8}  # the per-Gaussian tables and their float32 columns
+HALF_MIN = 2.0 ** -14  # the smallest normal half float
 OVERFLOW_DEPTH = -2e10  # a pixel's Depth when its ray needed more hit slots than the shader has
 fold, flat = gpu_layout.fold_rows, gpu_layout.fold_scalars  # importing this module registers its modes (end)
 
@@ -45,21 +51,45 @@ def check_exact(**arrays):
     return None
 
 
+def halves(lo, hi) -> np.ndarray:
+    """Two float arrays as half floats in one float32 word each (GLSL packHalf2x16(vec2(lo, hi)))."""
+    b = [np.asarray(x, np.float32).astype(np.float16).view(np.uint16).astype(np.uint32) for x in (lo, hi)]
+    return (b[0] | (b[1] << np.uint32(16))).view(np.float32)
+
+
+def half_words(inv, flags) -> np.ndarray:
+    """(m, 2) float32 words: [1/sigma x | y, flags | 1/sigma z] (flags: 16-bit integers)."""
+    f = np.asarray(flags, np.uint32).astype(np.uint16).view(np.float16)
+    return np.stack([halves(inv[:, 0], inv[:, 1]), halves(f, inv[:, 2])], -1)
+
+
+def bad_sizes(inv) -> np.ndarray:
+    """(m,) whether a Gaussian's 1/sigma has a component no normal half float holds."""
+    h = np.asarray(inv, np.float32).astype(np.float16)
+    return ~(np.isfinite(h) & (h >= HALF_MIN)).all(axis=-1)
+
+
 def gauss_tables(mode, gauss) -> dict:
-    """g_rec and g_aux for a frame's Gaussians (packing.Gaussians); paper: column 7 = w x volfac."""
+    """g_rec for a frame's Gaussians (packing.Gaussians); paper: column 3 = w x volfac."""
     from .scene import Mode
 
-    rec = np.array(gauss.rec, np.float64)
-    if mode == Mode.PAPER:
-        rec[:, 7] = gauss.w * gauss.volfac
+    rec = np.asarray(gauss.rec, np.float64)
+    m = rec.shape[0]
     val = np.asarray(gauss.val, np.float64)
     ok = ~np.isnan(val)
-    aux = np.zeros((rec.shape[0], 8))
-    aux[:, 0:3] = gauss.col
-    aux[:, 3] = np.where(ok, val, 0.0)
-    aux[:, 4] = ok
-    aux[:, 5] = gauss.obj
-    return {"g_rec": fold(rec), "g_aux": fold(aux)}
+    out = np.zeros((m, 8), np.float32)
+    out[:, 0:3] = rec[:, 0:3]
+    out[:, 3] = gauss.w * gauss.volfac if mode == Mode.PAPER else rec[:, 7]
+    inv = np.where((bad_sizes(rec[:, 3:6]) & (rec[:, 6] == 0))[:, None], 1.0, rec[:, 3:6])  # unseen
+    out[:, 4:6] = half_words(inv, np.asarray(gauss.obj, np.int64) | (ok.astype(np.int64) << 15))
+    out[:, 6] = rec[:, 6]
+    out[:, 7] = np.where(ok, val, 0.0)
+    return {"g_rec": fold(out)}
+
+
+def bytes_per_gaussian() -> int:
+    """The GPU scene's bytes per Gaussian: every per-Gaussian table's texels x 16 (RGBA32F)."""
+    return sum(16 * gpu_layout.texels_per_row(c) for c in GAUSS_COLUMNS.values())
 
 
 def tile_tables(start, items, masks) -> dict:
@@ -92,9 +122,12 @@ def frame_tiles(frame):
 def unsupported(frame) -> str | None:
     """Why the GPU's Gaussian modes cannot draw this frame exactly (the device then draws it on
     the CPU), or None: lit volumes, no screen-tile lists (switched off or too many entries), or
-    an index past the floats' exact range."""
+    an index past the floats' exact range, or a 1/sigma no half float holds."""
     if (np.asarray(frame.objects.lit) != 0).any():
         return "lit volumes"
+    rec = frame.gauss.rec
+    if (bad_sizes(rec[:, 3:6]) & (rec[:, 6] != 0)).any():
+        return "a Gaussian too small or large for half-float sizes"
     tiles = frame_tiles(frame)
     if tiles is None:
         return "no screen-tile lists"
