@@ -9,11 +9,11 @@ channel k % 4 (``flat``). Integers travel as exact floats, so each must stay bel
 Tables (name: rows x columns, what):
 - g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table): texel 0 = centre (3) and
   the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
-  factor); texel 1 = [1/sigma x | y as two halves, 1/sigma z | flags, w, value (0 when NaN)],
-  flags: object (bits 0-14) and "has a value" (bit 15). A packed word's high half is a normal
-  half float (1/sigma, range checked), so the word is a normal float32 (never NaN, Inf or
-  denormal) and survives upload and texelFetch bit for bit. Colours are not uploaded: the
-  shader takes them from the transfer function's LUT at the value (level sets: ls_color).
+  factor); texel 1 = [1/sigma x, y, z as 18-bit floats with the object (4 bits) and "has a
+  value" (1 bit) in two words (size_words), w, value (0 when NaN)]. A packed word's high half
+  is a normal half float's bits (range checked), so the word is a normal float32 (never NaN,
+  Inf or denormal) and survives upload and texelFetch bit for bit. Colours are not uploaded:
+  the shader takes them from the transfer function's LUT at the value (level sets: ls_color).
 - t_start (flat, tiles + 1): each screen tile's first entry.
 - t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
   20 bits (bit b of the mask: piece b // 22, bit b % 22).
@@ -29,7 +29,7 @@ from . import gpu_layout
 
 MASK_BITS = 22
 GAUSS_COLUMNS = {"g_rec": 8}  # the per-Gaussian tables and their float32 columns
-HALF_MIN = 2.0 ** -14  # the smallest normal half float
+MANT_DROP, EXP_REBIAS = 10, 112  # float32 -> 18-bit size codes: mantissa bits dropped, exponent bias
 OVERFLOW_DEPTH = -2e10  # a pixel's Depth when its ray needed more hit slots than the shader has
 fold, flat = gpu_layout.fold_rows, gpu_layout.fold_scalars  # importing this module registers its modes (end)
 
@@ -51,22 +51,34 @@ def check_exact(**arrays):
     return None
 
 
-def halves(lo, hi) -> np.ndarray:
-    """Two float arrays as half floats in one float32 word each (GLSL packHalf2x16(vec2(lo, hi)))."""
-    b = [np.asarray(x, np.float32).astype(np.float16).view(np.uint16).astype(np.uint32) for x in (lo, hi)]
-    return (b[0] | (b[1] << np.uint32(16))).view(np.float32)
+def size_codes(inv) -> np.ndarray:
+    """1/sigma (> 0) as 18-bit floats: a half float's 5-bit exponent and 13 mantissa bits
+    (relative error <= 2^-14), rounded; as int64, the exponent valid where 1..30 (size_ok)."""
+    f = np.asarray(inv, np.float32).view(np.uint32).astype(np.int64)
+    return ((f + (1 << (MANT_DROP - 1))) >> MANT_DROP) - (EXP_REBIAS << 13)
 
 
-def half_words(inv, flags) -> np.ndarray:
-    """(m, 2) float32 words: [1/sigma x | y, flags | 1/sigma z] (flags: 16-bit integers)."""
-    f = np.asarray(flags, np.uint32).astype(np.uint16).view(np.float16)
-    return np.stack([halves(inv[:, 0], inv[:, 1]), halves(f, inv[:, 2])], -1)
+def size_ok(codes) -> np.ndarray:
+    e = np.asarray(codes) >> 13
+    return (e >= 1) & (e <= 30)
+
+
+def size_words(inv, flags) -> np.ndarray:
+    """(m, 2) float32 words [x code >> 3 | y code >> 3, z code >> 3 | low bits]: the high half of
+    each is a normal half float's bits, so the word is a normal float32; low bits: the codes'
+    3 low bits each (x: 0-2, y: 3-5, z: 6-8), then flags (16-bit integers) << 9."""
+    c = size_codes(inv)
+    c = np.where(size_ok(c), c, 15 << 13).astype(np.uint32)  # out of range: 1.0
+    hi = c >> np.uint32(3)
+    low = (c[:, 0] & 7) | ((c[:, 1] & 7) << 3) | ((c[:, 2] & 7) << 6) | (np.asarray(flags, np.uint32) << 9)
+    x = (hi[:, 0] << np.uint32(16)) | hi[:, 1]
+    y = (hi[:, 2] << np.uint32(16)) | (low & np.uint32(0xFFFF))
+    return np.stack([x, y], -1).astype(np.uint32).view(np.float32)
 
 
 def bad_sizes(inv) -> np.ndarray:
-    """(m,) whether a Gaussian's 1/sigma has a component no normal half float holds."""
-    h = np.asarray(inv, np.float32).astype(np.float16)
-    return ~(np.isfinite(h) & (h >= HALF_MIN)).all(axis=-1)
+    """(m,) whether a Gaussian's 1/sigma has a component the 18-bit floats do not hold."""
+    return ~size_ok(size_codes(inv)).all(axis=-1)
 
 
 def gauss_tables(mode, gauss) -> dict:
@@ -80,8 +92,8 @@ def gauss_tables(mode, gauss) -> dict:
     out = np.zeros((m, 8), np.float32)
     out[:, 0:3] = rec[:, 0:3]
     out[:, 3] = gauss.w * gauss.volfac if mode == Mode.PAPER else rec[:, 7]
-    inv = np.where((bad_sizes(rec[:, 3:6]) & (rec[:, 6] == 0))[:, None], 1.0, rec[:, 3:6])  # unseen
-    out[:, 4:6] = half_words(inv, np.asarray(gauss.obj, np.int64) | (ok.astype(np.int64) << 15))
+    # (a size beyond the codes' range reads as 1: only weight-0 Gaussians, see unsupported)
+    out[:, 4:6] = size_words(rec[:, 3:6], np.asarray(gauss.obj, np.int64) | (ok.astype(np.int64) << 4))
     out[:, 6] = rec[:, 6]
     out[:, 7] = np.where(ok, val, 0.0)
     return {"g_rec": fold(out)}
@@ -122,12 +134,12 @@ def frame_tiles(frame):
 def unsupported(frame) -> str | None:
     """Why the GPU's Gaussian modes cannot draw this frame exactly (the device then draws it on
     the CPU), or None: lit volumes, no screen-tile lists (switched off or too many entries), or
-    an index past the floats' exact range, or a 1/sigma no half float holds."""
+    an index past the floats' exact range, or a 1/sigma beyond the size codes."""
     if (np.asarray(frame.objects.lit) != 0).any():
         return "lit volumes"
     rec = frame.gauss.rec
     if (bad_sizes(rec[:, 3:6]) & (rec[:, 6] != 0)).any():
-        return "a Gaussian too small or large for half-float sizes"
+        return "a Gaussian too small or large for the GPU's size codes"
     tiles = frame_tiles(frame)
     if tiles is None:
         return "no screen-tile lists"

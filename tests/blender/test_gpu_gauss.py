@@ -1,6 +1,6 @@
 """The GPU device's Gaussian modes against the CPU device (llvmpipe here): particles, field and
 paper on a fog volume, a level set (field: its surface; particles, paper: a shell), two
-overlapping objects and Gaussians of varied, anisotropic sizes (whose 1/sigma half floats round)
+overlapping objects and Gaussians of varied, anisotropic sizes (whose 1/sigma codes round)
 (PSNR >= 50 dB, Depth and Value passes); rays with more chords than the shader's hit slots, whose
 tiles the CPU device draws; the packed Gaussian words bit for bit through upload and texelFetch."""
 import math
@@ -52,7 +52,7 @@ def fog():
 
 
 def varied():
-    """The fog's lattice with random anisotropic sizes (1/sigma no half float holds exactly)."""
+    """The fog's lattice with random anisotropic sizes (1/sigma rounds in its 18-bit code)."""
     r2 = lambda c: ((c - 7.5) ** 2).sum(1)  # noqa: E731
     g = np.arange(16)
     c = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3).astype(float)
@@ -121,7 +121,7 @@ def test_overflowing_rays_drawn_on_cpu(gpu, cpu):
 
 
 def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):
-    """g_rec's half-float words (gpu_layout_gauss) read back in a compute shader with
+    """g_rec's packed words (gpu_layout_gauss.size_words) read back in a compute shader with
     floatBitsToUint are the bits numpy packed: each 16-bit half written out as an exact float."""
     import gpu as gpu_module
     from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import compute, context
@@ -131,7 +131,6 @@ def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):
     sc = RenderScene([RenderObject(varied())], mode="particles")
     fr = cpu.begin_frame(sc, CAM, TF)
     table = L.gauss_tables(fr.mode, fr.gauss)["g_rec"]
-    n = table.shape[0] * table.shape[1]
 
     def run():
         info = gpu_module.types.GPUShaderCreateInfo()
@@ -158,5 +157,5 @@ def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):
 
     lo, hi = context.run(run)
     bits = table.view(np.uint32)
-    assert n >= 8 * fr.gauss.rec.shape[0]
+    assert table.size >= 8 * fr.gauss.rec.shape[0]  # every Gaussian's 8 words compared
     assert (lo == (bits & 0xFFFF)).all() and (hi == (bits >> 16)).all()

@@ -10,26 +10,27 @@
 #define TWO_OVER_SQRT_PI 1.12837917
 
 /* Gaussian g (gpu_layout_gauss.gauss_tables, two texels): centre, column 3 (entry bound, or
- * paper's w x volfac), 1/sigma (half floats), weight w, value (0 when none), whether it has a
- * value, object */
+ * paper's w x volfac), 1/sigma (18-bit floats: size_words), weight w, value (0 when none),
+ * whether it has a value, object */
 struct Gauss { vec3 mu; float bound; vec3 iv; float w, val; bool has_val; int ob; };
 Gauss gauss_at(int g)
 {
   vec4 a = texel(g_rec, 2 * g), b = texel(g_rec, 2 * g + 1);
-  uint zf = floatBitsToUint(b.y);
+  uint x = floatBitsToUint(b.x), y = floatBitsToUint(b.y);
+  uvec3 code = (uvec3(x >> 16, x & 0xffffu, y >> 16) << 3) | (uvec3(y, y >> 3, y >> 6) & 7u);
   Gauss G;
   G.mu = a.xyz;
   G.bound = a.w;
-  G.iv = vec3(unpackHalf2x16(floatBitsToUint(b.x)), unpackHalf2x16(zf).y);
+  G.iv = uintBitsToFloat((code + (112u << 13)) << 10);  /* EXP_REBIAS, MANT_DROP */
   G.w = b.z;
   G.val = b.w;
-  G.has_val = (zf & 0x8000u) != 0u;
-  G.ob = int(zf & 0x7fffu);
+  G.has_val = ((y >> 13) & 1u) != 0u;
+  G.ob = int((y >> 9) & 15u);
   return G;
 }
 float g_bound(int g) { return texel(g_rec, 2 * g).w; }
 float g_weight(int g) { return texel(g_rec, 2 * g + 1).z; }
-int g_object(int g) { return int(floatBitsToUint(texel(g_rec, 2 * g + 1).y) & 0x7fffu); }
+int g_object(int g) { return int((floatBitsToUint(texel(g_rec, 2 * g + 1).y) >> 9) & 15u); }
 /* its colour (_cpu's per-frame colours: the LUT at its value; level sets: ls_color at the centre) */
 vec3 g_color(Gauss G)
 {
