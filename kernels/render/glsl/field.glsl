@@ -48,8 +48,9 @@ bool sweep_field(inout State st, float horizon)
       a_ts[nact] = f_ts[h];
       a_hq[nact] = f_hq[h];
       a_ha[nact] = f_ha[h];
-      a_w[nact] = g_weight(g);
-      a_ob[nact] = n_obj == 1 ? 0 : g_object(g);
+      Gauss G = gauss_at(g);
+      a_w[nact] = G.w;
+      a_ob[nact] = n_obj == 1 ? 0 : G.ob;
       nact++;
       f_cend = max(f_cend, f_e[h]);
       slot_free(h);

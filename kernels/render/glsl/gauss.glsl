@@ -28,9 +28,6 @@ Gauss gauss_at(int g)
   G.ob = int((y >> 9) & 15u);
   return G;
 }
-float g_bound(int g) { return texel(g_rec, 2 * g).w; }
-float g_weight(int g) { return texel(g_rec, 2 * g + 1).z; }
-int g_object(int g) { return int((floatBitsToUint(texel(g_rec, 2 * g + 1).y) >> 9) & 15u); }
 /* its colour (_cpu's per-frame colours: the LUT at its value; level sets: ls_color at the centre) */
 vec3 g_color(Gauss G)
 {
