@@ -7,9 +7,13 @@ channel k % 4 (``flat``). Integers travel as exact floats, so each must stay bel
 (``check_exact`` says where one does not; the device then draws that frame on the CPU).
 
 Tables (name: rows x columns, what):
-- g_rec (m x 8): centre (3), 1/sigma (3), this frame's weight w, and column 7: the tile lists'
-  entry bound (particles, field) or w x volfac (paper's per-step extinction factor).
-- g_aux (m x 8): colour (3), value (0 when NaN), value weight (1, or 0 when NaN), object.
+- g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table): texel 0 = centre (3) and
+  the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
+  factor); texel 1 = [1/sigma x, y, z as 18-bit floats with the object (4 bits) and "has a
+  value" (1 bit) in two words (size_words), w, value (0 when NaN)]. A packed word's high half
+  is a normal half float's bits (range checked), so the word is a normal float32 (never NaN,
+  Inf or denormal) and survives upload and texelFetch bit for bit. Colours are not uploaded:
+  the shader takes them from the transfer function's LUT at the value (level sets: ls_color).
 - t_start (flat, tiles + 1): each screen tile's first entry.
 - t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
   20 bits (bit b of the mask: piece b // 22, bit b % 22).
@@ -24,6 +28,8 @@ import numpy as np
 from . import gpu_layout
 
 MASK_BITS = 22
+GAUSS_COLUMNS = {"g_rec": 8}  # the per-Gaussian tables and their float32 columns
+MANT_DROP, EXP_REBIAS = 10, 112  # float32 -> 18-bit size codes: mantissa bits dropped, exponent bias
 OVERFLOW_DEPTH = -2e10  # a pixel's Depth when its ray needed more hit slots than the shader has
 fold, flat = gpu_layout.fold_rows, gpu_layout.fold_scalars  # importing this module registers its modes (end)
 
@@ -45,21 +51,57 @@ def check_exact(**arrays):
     return None
 
 
+def size_codes(inv) -> np.ndarray:
+    """1/sigma (> 0) as 18-bit floats: a half float's 5-bit exponent and 13 mantissa bits
+    (relative error <= 2^-14), rounded; as int64, the exponent valid where 1..30 (size_ok)."""
+    f = np.asarray(inv, np.float32).view(np.uint32).astype(np.int64)
+    return ((f + (1 << (MANT_DROP - 1))) >> MANT_DROP) - (EXP_REBIAS << 13)
+
+
+def size_ok(codes) -> np.ndarray:
+    e = np.asarray(codes) >> 13
+    return (e >= 1) & (e <= 30)
+
+
+def size_words(inv, flags) -> np.ndarray:
+    """(m, 2) float32 words [x code >> 3 | y code >> 3, z code >> 3 | low bits]: the high half of
+    each is a normal half float's bits, so the word is a normal float32; low bits: the codes'
+    3 low bits each (x: 0-2, y: 3-5, z: 6-8), then flags (16-bit integers) << 9."""
+    c = size_codes(inv)
+    c = np.where(size_ok(c), c, 15 << 13).astype(np.uint32)  # out of range: 1.0
+    hi = c >> np.uint32(3)
+    low = (c[:, 0] & 7) | ((c[:, 1] & 7) << 3) | ((c[:, 2] & 7) << 6) | (np.asarray(flags, np.uint32) << 9)
+    x = (hi[:, 0] << np.uint32(16)) | hi[:, 1]
+    y = (hi[:, 2] << np.uint32(16)) | (low & np.uint32(0xFFFF))
+    return np.stack([x, y], -1).astype(np.uint32).view(np.float32)
+
+
+def bad_sizes(inv) -> np.ndarray:
+    """(m,) whether a Gaussian's 1/sigma has a component the 18-bit floats do not hold."""
+    return ~size_ok(size_codes(inv)).all(axis=-1)
+
+
 def gauss_tables(mode, gauss) -> dict:
-    """g_rec and g_aux for a frame's Gaussians (packing.Gaussians); paper: column 7 = w x volfac."""
+    """g_rec for a frame's Gaussians (packing.Gaussians); paper: column 3 = w x volfac."""
     from .scene import Mode
 
-    rec = np.array(gauss.rec, np.float64)
-    if mode == Mode.PAPER:
-        rec[:, 7] = gauss.w * gauss.volfac
+    rec = np.asarray(gauss.rec, np.float64)
+    m = rec.shape[0]
     val = np.asarray(gauss.val, np.float64)
     ok = ~np.isnan(val)
-    aux = np.zeros((rec.shape[0], 8))
-    aux[:, 0:3] = gauss.col
-    aux[:, 3] = np.where(ok, val, 0.0)
-    aux[:, 4] = ok
-    aux[:, 5] = gauss.obj
-    return {"g_rec": fold(rec), "g_aux": fold(aux)}
+    out = np.zeros((m, 8), np.float32)
+    out[:, 0:3] = rec[:, 0:3]
+    out[:, 3] = gauss.w * gauss.volfac if mode == Mode.PAPER else rec[:, 7]
+    # (a size beyond the codes' range reads as 1: only weight-0 Gaussians, see unsupported)
+    out[:, 4:6] = size_words(rec[:, 3:6], np.asarray(gauss.obj, np.int64) | (ok.astype(np.int64) << 4))
+    out[:, 6] = rec[:, 6]
+    out[:, 7] = np.where(ok, val, 0.0)
+    return {"g_rec": fold(out)}
+
+
+def bytes_per_gaussian() -> int:
+    """The GPU scene's bytes per Gaussian: every per-Gaussian table's texels x 16 (RGBA32F)."""
+    return sum(16 * gpu_layout.texels_per_row(c) for c in GAUSS_COLUMNS.values())
 
 
 def tile_tables(start, items, masks) -> dict:
@@ -94,9 +136,12 @@ def frame_tiles(frame):
 def unsupported(frame) -> str | None:
     """Why the GPU's Gaussian modes cannot draw this frame exactly (the device then draws it on
     the CPU), or None: lit volumes, no screen-tile lists (switched off or too many entries), or
-    an index past the floats' exact range."""
+    an index past the floats' exact range, or a 1/sigma beyond the size codes."""
     if (np.asarray(frame.objects.lit) != 0).any():
         return "lit volumes"
+    rec = frame.gauss.rec
+    if (bad_sizes(rec[:, 3:6]) & (rec[:, 6] != 0)).any():
+        return "a Gaussian too small or large for the GPU's size codes"
     tiles = frame_tiles(frame)
     if tiles is None:
         return "no screen-tile lists"

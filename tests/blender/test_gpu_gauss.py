@@ -1,7 +1,8 @@
 """The GPU device's Gaussian modes against the CPU device (llvmpipe here): particles, field and
-paper on a fog volume, a level set (field: its surface; particles, paper: a shell) and two
-overlapping objects (PSNR >= 50 dB, Depth and Value passes), and rays with more chords than the
-shader's hit slots, whose tiles the CPU device draws."""
+paper on a fog volume, a level set (field: its surface; particles, paper: a shell), two
+overlapping objects and Gaussians of varied, anisotropic sizes (whose 1/sigma codes round)
+(PSNR >= 50 dB, Depth and Value passes); rays with more chords than the shader's hit slots, whose
+tiles the CPU device draws; the packed Gaussian words bit for bit through upload and texelFetch."""
 import math
 
 import numpy as np
@@ -50,6 +51,18 @@ def fog():
     return lattice(16, lambda c: r2(c) < 60, lambda c: np.exp(-r2(c) / 30.0))
 
 
+def varied():
+    """The fog's lattice with random anisotropic sizes (1/sigma rounds in its 18-bit code)."""
+    r2 = lambda c: ((c - 7.5) ** 2).sum(1)  # noqa: E731
+    g = np.arange(16)
+    c = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3).astype(float)
+    c = c[r2(c) < 60]
+    rng = np.random.default_rng(3)
+    sig = rng.uniform(0.6, 1.1, (len(c), 3))
+    amp = 1.0 / ((2 * np.pi) ** 1.5 * sig.prod(1))
+    return gaussian_set(c + rng.normal(0, 0.05, c.shape), sig, np.exp(-r2(c) / 30.0), amp)
+
+
 def shell():
     r = lambda c: np.sqrt(((c - 7.5) ** 2).sum(1))  # noqa: E731
     return lattice(16, lambda c: np.abs(r(c) - 6.0) < 1.0, lambda c: np.ones(len(c)),
@@ -62,14 +75,14 @@ def scenes():
     two = [RenderObject(fog()), RenderObject(shell(), matrix_world=m, level_set_color="z",
                                              tf=TransferFunction.from_colormap("magma", 0, 1.0, density=0.6))]
     return {"fog": [RenderObject(fog())], "level set": [RenderObject(shell(), level_set_color=(0.9, 0.5, 0.2))],
-            "two objects": two}
+            "two objects": two, "varied sizes": [RenderObject(varied())]}
 
 
 CAM = Camera.frame_box([0] * 3, [20] * 3, W, W, direction=(1, 0.4, -0.3))
 
 
 @pytest.mark.parametrize("mode", ["particles", "field", "paper"])
-@pytest.mark.parametrize("name", ["fog", "level set", "two objects"])
+@pytest.mark.parametrize("name", ["fog", "level set", "two objects", "varied sizes"])
 def test_gauss_modes_match_cpu(gpu, cpu, mode, name):
     objs = scenes()[name]
     if mode == "field" and name == "level set":
@@ -105,3 +118,44 @@ def test_overflowing_rays_drawn_on_cpu(gpu, cpu):
     assert gpu.stats["overflow_tiles"] > 0
     db = psnr(got["Combined"], want["Combined"])
     assert db >= MIN_DB, f"overflow: PSNR {db:.1f} dB"
+
+
+def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):
+    """g_rec's packed words (gpu_layout_gauss.size_words) read back in a compute shader with
+    floatBitsToUint are the bits numpy packed: each 16-bit half written out as an exact float."""
+    import gpu as gpu_module
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import compute, context
+
+    from kernels.render import gpu_layout_gauss as L
+
+    sc = RenderScene([RenderObject(varied())], mode="particles")
+    fr = cpu.begin_frame(sc, CAM, TF)
+    table = L.gauss_tables(fr.mode, fr.gauss)["g_rec"]
+
+    def run():
+        info = gpu_module.types.GPUShaderCreateInfo()
+        info.image(0, "RGBA32F", "FLOAT_2D", "lo", qualifiers={"WRITE"})
+        info.image(1, "RGBA32F", "FLOAT_2D", "hi", qualifiers={"WRITE"})
+        info.sampler(0, "FLOAT_2D", "g_rec")
+        info.local_group_size(8, 8)
+        info.compute_source("""void main() {
+  ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+  uvec4 u = floatBitsToUint(texelFetch(g_rec, p, 0));
+  imageStore(lo, p, vec4(u & 0xffffu));
+  imageStore(hi, p, vec4(u >> 16u));
+}""")
+        sh = gpu_module.shader.create_from_info(info)
+        tex = compute.upload({"g_rec": table})["g_rec"]
+        h, w = table.shape[:2]
+        out = [gpu_module.types.GPUTexture((w, h), format="RGBA32F") for _ in range(2)]
+        sh.bind()
+        sh.uniform_sampler("g_rec", tex)
+        sh.image("lo", out[0])
+        sh.image("hi", out[1])
+        gpu_module.compute.dispatch(sh, -(-w // 8), -(-h // 8), 1)
+        return [compute.read(t) for t in out]
+
+    lo, hi = context.run(run)
+    bits = table.view(np.uint32)
+    assert table.size >= 8 * fr.gauss.rec.shape[0]  # every Gaussian's 8 words compared
+    assert (lo == (bits & 0xFFFF)).all() and (hi == (bits >> 16)).all()

@@ -33,9 +33,64 @@ def test_frame_tables_read_back():
     assert (tex[:len(a.t_items), 0] == a.t_items).all()
     start = t["t_start"].ravel()[:len(a.t_start)]
     assert (start == a.t_start).all()
-    rec = t["g_rec"].reshape(-1, 4)[:2 * fr.gauss.rec.shape[0]].reshape(-1, 8)
-    np.testing.assert_allclose(rec, fr.gauss.rec, rtol=1e-6)
+    g = decode(t["g_rec"], fr.gauss.rec.shape[0])
+    rec = fr.gauss.rec
+    np.testing.assert_allclose(g["mu"], rec[:, 0:3], rtol=1e-6)
+    np.testing.assert_allclose(g["bound"], rec[:, 7], rtol=1e-6)
+    np.testing.assert_allclose(g["w"], rec[:, 6], rtol=1e-6)
+    np.testing.assert_allclose(g["iv"], rec[:, 3:6], rtol=2.0 ** -14)  # 13 mantissa bits, rounded
     assert L.unsupported(fr) is None
+
+
+def decode(table, m):
+    """The shader's gauss_at in numpy: (m,) fields of the first m Gaussians of a g_rec table."""
+    w = table.reshape(-1, 4)[:2 * m].reshape(m, 8)
+    x, y = w[:, 4].view(np.uint32), w[:, 5].view(np.uint32)
+    code = (np.stack([x >> 16, x & 0xFFFF, y >> 16], -1) << 3) | (np.stack([y, y >> 3, y >> 6], -1) & 7)
+    iv = ((code + (112 << 13)) << 10).astype(np.uint32).view(np.float32)
+    return {"mu": w[:, 0:3], "bound": w[:, 3], "iv": iv, "w": w[:, 6], "val": w[:, 7],
+            "has_val": ((y >> 13) & 1) == 1, "ob": (y >> 9) & 15, "words": w}
+
+
+def test_gaussians_in_32_bytes():
+    """Every per-Gaussian table the modes upload, counted: at most 32 bytes a Gaussian; the
+    packed words are normal floats (no NaN, Inf or denormal a GPU could alter); values, NaN
+    flags and objects read back."""
+    rng = np.random.default_rng(2)
+    n = 200
+    vals = rng.uniform(0, 1, n)
+    vals[::7] = np.nan
+    a = gaussian_set(rng.uniform(0, 9, (n, 3)), rng.uniform(0.3, 3.0, (n, 3)), vals, 1.0)
+    b = gaussian_set(rng.uniform(0, 9, (50, 3)), 0.7, np.zeros(50), 1.0)
+    sc = RenderScene([RenderObject(a), RenderObject(b)], mode="particles")
+    cam = Camera.frame_box([0] * 3, [9] * 3, 24, 24)
+    tf = TransferFunction.from_colormap("viridis", 0, 1)
+    assert L.bytes_per_gaussian() <= 32
+    for mode in ("particles", "field", "paper"):
+        sc.mode = mode
+        fr = CPUDevice().begin_frame(sc, cam, tf)
+        t = L.gpu_layout.MODE_TABLES[mode][1](fr).textures
+        m = fr.gauss.rec.shape[0]
+        assert [k for k in t if k.startswith("g_")] == list(L.GAUSS_COLUMNS)  # the Gaussians' tables
+        texels = t["g_rec"].size // 4
+        assert 2 * m <= texels < 2 * m + L.gpu_layout.ROW_TEXELS
+        g = decode(t["g_rec"], m)
+        f = np.abs(g["words"][:, 4:6])
+        assert (np.isfinite(f) & (f >= np.finfo(np.float32).tiny)).all()
+        assert (g["ob"] == fr.gauss.obj).all()
+        nan = np.isnan(fr.gauss.val)
+        assert nan.any() and (g["has_val"] == ~nan).all()
+        np.testing.assert_array_equal(g["val"], np.where(nan, 0.0, fr.gauss.val).astype(np.float32))
+        if mode == "paper":
+            np.testing.assert_allclose(g["bound"], fr.gauss.w * fr.gauss.volfac, rtol=1e-6)
+
+
+def test_sizes_beyond_the_size_codes_go_to_cpu():
+    gs = gaussian_set([[1.0, 1.0, 1.0], [3.0, 3.0, 3.0]], [[0.5] * 3, [1e5] * 3], [0.5, 0.5], 1.0)
+    sc = RenderScene([RenderObject(gs)], mode="particles")
+    fr = CPUDevice().begin_frame(sc, Camera.frame_box([0] * 3, [4] * 3, 16, 16),
+                                 TransferFunction.from_colormap("viridis", 0, 1))
+    assert "size codes" in L.unsupported(fr)
 
 
 def test_overflow_tiles():

@@ -48,8 +48,9 @@ bool sweep_field(inout State st, float horizon)
       a_ts[nact] = f_ts[h];
       a_hq[nact] = f_hq[h];
       a_ha[nact] = f_ha[h];
-      a_w[nact] = g_rec1(g).z;
-      a_ob[nact] = n_obj == 1 ? 0 : g_object(g);
+      Gauss G = gauss_at(g);
+      a_w[nact] = G.w;
+      a_ob[nact] = n_obj == 1 ? 0 : G.ob;
       nact++;
       f_cend = max(f_cend, f_e[h]);
       slot_free(h);
@@ -171,18 +172,18 @@ void mixture_normal(inout State st)
         int j1 = iscalar(c_start, cid + 1);
         for (int j = iscalar(c_start, cid); j < j1; j++) {
           int g = iscalar(c_items, j);
-          vec4 r0 = g_rec0(g), r1 = g_rec1(g);
-          if (ivec3(floor((r0.xyz + 0.5) / LEAF)) != c || r1.z == 0.0) {
+          Gauss G = gauss_at(g);
+          if (ivec3(floor((G.mu + 0.5) / LEAF)) != c || G.w == 0.0) {
             continue; /* counted in the cell of its centre */
           }
-          vec3 iv = vec3(r0.w, r1.x, r1.y);
+          vec3 iv = G.iv;
           vec3 ib = 1.0 / sqrt(1.0 / (iv * iv) + NORMAL_BLUR);
-          vec3 u = (x - r0.xyz) * ib;
+          vec3 u = (x - G.mu) * ib;
           float q = dot(u, u);
           if (q > 16.0) {
             continue;
           }
-          float e = r1.z * ib.x * ib.y * ib.z / (iv.x * iv.y * iv.z) * exp(-0.5 * q);
+          float e = G.w * ib.x * ib.y * ib.z / (iv.x * iv.y * iv.z) * exp(-0.5 * q);
           grad += e * u * ib;
         }
       }
@@ -213,16 +214,17 @@ bool trace_tiles(float tn, float tf, inout State st)
     if (g < 0) {
       continue;
     }
-    float lbg = g_rec1(g).w;
+    Gauss G = gauss_at(g);
+    float lbg = G.bound;
     if (nh >= swept + BATCH && q0 < nq && q_t[q0] < lbg) {
       swept = nh;
       if (sweep_field(st, lbg)) {
         return !f_over;
       }
     }
-    int ob = n_obj == 1 ? 0 : g_object(g);
+    int ob = n_obj == 1 ? 0 : G.ob;
     float aa, qq, ra;
-    vec4 c = chord(g, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
+    vec4 c = chord(G, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
     if (!(c.y > c.x)) {
       continue;
     }

@@ -9,13 +9,34 @@
 #define SQRT_HALF_PI 1.25331414
 #define TWO_OVER_SQRT_PI 1.12837917
 
-/* Gaussian g: centre, 1/sigma, weight w, column 7 (entry bound, or paper's w x volfac) */
-vec4 g_rec0(int g) { return texel(g_rec, 2 * g); }
-vec4 g_rec1(int g) { return texel(g_rec, 2 * g + 1); }
-vec3 g_color(int g) { return texel(g_aux, 2 * g).rgb; }
-float g_value(int g) { return texel(g_aux, 2 * g).a; }  /* 0 when NaN */
-float g_vweight(int g) { return texel(g_aux, 2 * g + 1).r; }  /* 0 when NaN */
-int g_object(int g) { return int(texel(g_aux, 2 * g + 1).g); }
+/* Gaussian g (gpu_layout_gauss.gauss_tables, two texels): centre, column 3 (entry bound, or
+ * paper's w x volfac), 1/sigma (18-bit floats: size_words), weight w, value (0 when none),
+ * whether it has a value, object */
+struct Gauss { vec3 mu; float bound; vec3 iv; float w, val; bool has_val; int ob; };
+Gauss gauss_at(int g)
+{
+  vec4 a = texel(g_rec, 2 * g), b = texel(g_rec, 2 * g + 1);
+  uint x = floatBitsToUint(b.x), y = floatBitsToUint(b.y);
+  uvec3 code = (uvec3(x >> 16, x & 0xffffu, y >> 16) << 3) | (uvec3(y, y >> 3, y >> 6) & 7u);
+  Gauss G;
+  G.mu = a.xyz;
+  G.bound = a.w;
+  G.iv = uintBitsToFloat((code + (112u << 13)) << 10);  /* EXP_REBIAS, MANT_DROP */
+  G.w = b.z;
+  G.val = b.w;
+  G.has_val = ((y >> 13) & 1u) != 0u;
+  G.ob = int((y >> 9) & 15u);
+  return G;
+}
+/* its colour (_cpu's per-frame colours: the LUT at its value; level sets: ls_color at the centre) */
+vec3 g_color(Gauss G)
+{
+  int ob = n_obj == 1 ? 0 : G.ob;
+  if (g_kind[ob] != 0) {
+    return ls_color(ob, g_tfi[ob], G.mu);
+  }
+  return G.has_val ? lut_at(g_tfi[ob], tf_x(G.val, g_par[ob])).rgb : vec3(0.0);
+}
 
 int tile_first(int tl) { return int(scalar(t_start, tl)); }
 /* entry q of the tile lists: its Gaussian, or -1 when pixel bit `bit` is not in its mask */
@@ -49,14 +70,12 @@ float erf_span(float u0, float u1, float h) {
   return erf_g(u1) - erf_g(u0);
 }
 
-/* Gaussian g against the index-space ray o + t d (_cpu_chords.chord): returns (s, e, ts, pk)
+/* Gaussian G against the index-space ray o + t d (_cpu_chords.chord): returns (s, e, ts, pk)
  * with the chord clipped to [tn, tf] (a miss: s >= e); aa = |d'|^2, qq its closest squared
  * distance, ra = 1 / |d'|. */
-vec4 chord(int g, vec3 o, vec3 d, float k2, float tn, float tf, out float aa, out float qq, out float ra) {
-  vec4 r0 = g_rec0(g), r1 = g_rec1(g);
-  vec3 iv = vec3(r0.w, r1.x, r1.y);
-  vec3 w = (o - r0.xyz) * iv;
-  vec3 v = d * iv;
+vec4 chord(Gauss G, vec3 o, vec3 d, float k2, float tn, float tf, out float aa, out float qq, out float ra) {
+  vec3 w = (o - G.mu) * G.iv;
+  vec3 v = d * G.iv;
   aa = dot(v, v);
   float ia = 1.0 / aa;
   float ts = -dot(w, v) * ia;
@@ -65,7 +84,7 @@ vec4 chord(int g, vec3 o, vec3 d, float k2, float tn, float tf, out float aa, ou
   ra = sqrt(ia);
   float hw = sqrt(max(k2 - qq, 0.0)) * ra;
   float s = qq < k2 ? max(ts - hw, tn) : INF;
-  float pk = r1.z * exp(-0.5 * min(qq, k2));
+  float pk = G.w * exp(-0.5 * min(qq, k2));
   return vec4(s, min(ts + hw, tf), ts, pk);
 }
 

@@ -30,10 +30,9 @@ void trace_mode(Ray r, inout State st)
       if (g < 0) {
         continue;
       }
-      int ob = n_obj == 1 ? 0 : g_object(g);
-      vec4 r0 = g_rec0(g), r1 = g_rec1(g);
-      vec3 iv = vec3(r0.w, r1.x, r1.y);
-      vec3 w = (g_ro[ob] - r0.xyz) * iv, v = g_rd[ob] * iv;
+      Gauss G = gauss_at(g);
+      int ob = n_obj == 1 ? 0 : G.ob;
+      vec3 w = (g_ro[ob] - G.mu) * G.iv, v = g_rd[ob] * G.iv;
       float a = dot(v, v);
       float ts = -dot(w, v) / a;
       vec3 p = w + ts * v;
@@ -70,16 +69,15 @@ void trace_mode(Ray r, inout State st)
         continue; /* entered inside the last Gaussian drawn */
       }
       int g = b_g[k];
-      int ob = n_obj == 1 ? 0 : g_object(g);
-      vec4 r0 = g_rec0(g), r1 = g_rec1(g);
-      vec3 iv = vec3(r0.w, r1.x, r1.y);
-      vec3 col = g_color(g);
-      float val = g_value(g), vw = g_vweight(g);
+      Gauss G = gauss_at(g);
+      int ob = n_obj == 1 ? 0 : G.ob;
+      vec3 col = g_color(G);
+      float val = G.val, vw = G.has_val ? 1.0 : 0.0;
       float dt = (b_t1[k] - b_t0[k]) / float(nsteps);
       for (int s = 0; s < nsteps; s++) {
         float t = b_t0[k] + (float(s) + 0.5) * dt;
-        vec3 u = (g_ro[ob] + t * g_rd[ob] - r0.xyz) * iv;
-        float A = r1.w * exp(-0.5 * dot(u, u)) * dt;
+        vec3 u = (g_ro[ob] + t * g_rd[ob] - G.mu) * G.iv;
+        float A = G.bound * exp(-0.5 * dot(u, u)) * dt;
         float T = st.tr;
         st.rad += T * col * A;
         if (vw > 0.0) {

@@ -149,14 +149,15 @@ bool trace_tiles(float tn, float tf, inout State st) {
   for (int q = tile_first(tl); q < t1; q++) {
     int g = tile_entry(q, bit);
     if (g < 0) continue;
-    float lbg = g_rec1(g).w;
+    Gauss G = gauss_at(g);
+    float lbg = G.bound;
     if (nh >= swept + BATCH && ((q0 < nq && q_t[q0] < lbg) || (nm > 0 && s_cend <= lbg))) {
       swept = nh;
       if (sweep_particles(st, lbg, tau_max)) return true;
     }
-    int ob = n_obj == 1 ? 0 : g_object(g);
+    int ob = n_obj == 1 ? 0 : G.ob;
     float aa, qq, ra;
-    vec4 c = chord(g, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
+    vec4 c = chord(G, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
     if (!(c.y > c.x)) continue;
     if (nfree == 0) {
       if (sweep_particles(st, lbg, tau_max)) return true;
@@ -166,7 +167,7 @@ bool trace_tiles(float tn, float tf, inout State st) {
     h_s[h] = c.x; h_e[h] = c.y; h_ts[h] = c.z; h_pk[h] = c.w;
     h_sa[h] = SQRT_HALF * aa * ra;
     h_c[h] = c.w * SQRT_HALF_PI * ra;
-    h_col[h] = g_color(g); h_val[h] = g_value(g); h_vw[h] = g_vweight(g);
+    h_col[h] = g_color(G); h_val[h] = G.val; h_vw[h] = G.has_val ? 1.0 : 0.0;
     queue_insert(c.x, g, h);
     nh++;
   }
