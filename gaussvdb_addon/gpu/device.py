@@ -17,8 +17,12 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import gpu_layout, gpu_layout_gauss  # the latter adds the Gaussian modes to MODE_TABLES
-from . import compute, context
+from ...kernels.render import (  # the latter adds the Gaussian modes to MODE_TABLES
+    gpu_layout,
+    gpu_layout_gauss,
+    gpu_layout_tiles,
+)
+from . import compute, context, tiles
 
 # glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
 # ONE_PER_GROUP: one pixel per work group on llvmpipe); lit: whether it shades lit volumes (else
@@ -34,8 +38,9 @@ STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 class GPUDevice(kdevice.Device):
     name = "GPU"
 
-    def __init__(self, threads=None, cache_dir=None, **kw):
+    def __init__(self, threads=None, cache_dir=None, gpu_tiles=False, **kw):
         self.cpu = kdevice.CPUDevice(threads=threads, cache_dir=cache_dir, **kw)
+        self.gpu_tiles = bool(gpu_tiles)  # the Gaussian modes' screen-tile lists built here (tiles.py)
         self._geom = None  # (key, Tables, textures)
         self._up = None  # (frame key, Tables, textures)
         self._out = None  # the last output textures (reused while the band size stays)
@@ -47,7 +52,10 @@ class GPUDevice(kdevice.Device):
         self.stats["seconds_sync"] = self.cpu.stats.get("seconds_sync", 0.0)
 
     def begin_frame(self, scene, camera, tf):
+        self.cpu.tiles_elsewhere = self.gpu_tiles
         frame = self.cpu.begin_frame(scene, camera, tf)
+        frame.tiles_on_gpu = (self.gpu_tiles and int(frame.mode) <= Mode.PAPER
+                              and frame.gauss.mu.shape[0] > 0)
         self.stats["seconds_setup"] = self.cpu.stats.get("seconds_setup", 0.0)
         return frame
 
@@ -73,11 +81,16 @@ class GPUDevice(kdevice.Device):
             return gpu_layout_gauss.unsupported(frame)
         return None
 
+    def _cpu_render(self, *args, **kw):
+        """The CPU device's image (its frame then has its own screen-tile lists)."""
+        self.cpu.tiles_elsewhere = False
+        return self.cpu.render(*args, **kw)
+
     def _overflow(self, scene, camera, tf, rgba, dv, r0, c0):
         """Redraw on the CPU device the screen tiles with a ray that ran out of hit slots."""
         tiles = gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0)
         for (a, b), (c, d) in tiles:
-            out = self.cpu.render(scene, camera, tf, rows=(a, b), cols=(c, d))
+            out = self._cpu_render(scene, camera, tf, rows=(a, b), cols=(c, d))
             rgba[a - r0:b - r0, c - c0:d - c0] = out["Combined"]
             dv[a - r0:b - r0, c - c0:d - c0, 0] = out.get("Depth", 1e10)
             dv[a - r0:b - r0, c - c0:d - c0, 1] = out.get("Value", 0.0)
@@ -101,7 +114,11 @@ class GPUDevice(kdevice.Device):
             self._geom = (gkey, t, compute.upload(t.textures))
         if self._up is None or self._up[0] != frame.key:
             t = frame_fn(frame)
-            self._up = (frame.key, t, compute.upload(t.textures))
+            tex = compute.upload(t.textures)
+            if gpu_layout_gauss.on_gpu(frame):
+                tex.update(self._tile_lists(frame))
+                t.textures.update({n: np.zeros((1, 1, 4), np.float32) for n in ("t_start", "t_ent", "t_lb")})
+            self._up = (frame.key, t, tex)
         _, gt, gtex = self._geom
         _, ft, ftex = self._up
         ints = dict(gt.ints, **ft.ints)
@@ -110,10 +127,26 @@ class GPUDevice(kdevice.Device):
         self.stats["gpu_bytes"] = gpu_layout.nbytes(gt) + gpu_layout.nbytes(ft)
         return name, spec, arrays, tex, ints
 
+    def _tile_lists(self, frame):
+        """t_start, t_ent, t_lb built on the GPU; the CPU's lists uploaded when they do not fit."""
+        try:
+            lists, n = tiles.build(frame)
+            self.stats.update(gpu_tile_entries=n, tile_lists="GPU")
+            return lists
+        except tiles.TooMany as e:
+            t = gpu_layout_tiles.cpu_lists(frame)
+            if t is None:
+                raise ValueError(f"the screen-tile lists ({e}) pass what one frame holds; "
+                                 "use the CPU device") from None
+            self.stats.update(gpu_tile_entries=int(t["t_ent"].size // 4), tile_lists="CPU")
+            return compute.upload(t)
+
     def _dispatch(self, frame, rows, cols):
         import gpu
 
         name, spec, arrays, tex, ints = self._tables(frame)
+        if gpu_layout_gauss.on_gpu(frame):
+            spec = spec._replace(defines=spec.defines + ("GPU_TILES",))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
@@ -124,8 +157,8 @@ class GPUDevice(kdevice.Device):
         frame = self.begin_frame(scene, camera, tf)
         why = self.fallback(frame)
         if why is not None:
-            out = self.cpu.render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
-                                  cancel=cancel)
+            out = self._cpu_render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
+                                   cancel=cancel)
             self.stats = dict(self.cpu.stats, fallback=why)
             return out
         t_setup = self.stats["seconds_setup"]

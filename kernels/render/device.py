@@ -81,6 +81,7 @@ class CPUDevice(Device):
         self._k = _cpu
         self._kt = _cpu_tiles
         self.screen_tiles = bool(screen_tiles)  # particles/field: screen tiles, else the leaf walk
+        self.tiles_elsewhere = False  # a GPU device builds the frame's screen-tile lists itself
         self.threads = threads
         self.tile_rows = tile_rows  # rows per step with progress/cancel (None: see render)
         self._key = None
@@ -285,6 +286,8 @@ class CPUDevice(Device):
         m = A.g_mu.shape[0]
         if not self.screen_tiles or m == 0 or mode > Mode.FIELD:
             return none
+        if self.tiles_elsewhere:  # no lists, no leaf walk: this frame is only drawn elsewhere
+            return packing.NO_TILES + (np.zeros(m),)
         i2w = [np.asarray(o.matrix_world, np.float64) for o in scene.objects]
         tiles = screen_tiles(camera.packed(), i2w, A.g_mu, A.g_inv, A.g_obj, g_w, float(scene.support_k))
         return none if tiles is None else tiles
@@ -297,7 +300,8 @@ class CPUDevice(Device):
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
                   objects.clip, objects.lit, transfer.lights, transfer.settings, objects.ctf,
                   objects.cbg)
-        return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes()) + tuple(
+        return (self._sync_count, mode, bool(self.screen_tiles), self.tiles_elsewhere,
+                camera.packed().tobytes()) + tuple(
             np.ascontiguousarray(a).tobytes() for a in tables)
 
     def begin_frame(self, scene, camera, tf):
@@ -474,12 +478,9 @@ class CPUDevice(Device):
         return out
 
 
-def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k):
-    """The screen-tile lists (_cpu_tiles) of Gaussians with weights g_w for the packed camera cam
-    and the objects' index -> world matrices i2w: starts, ids, pixel masks and each Gaussian's
-    entry bound; None when they would pass MAX_TILE_ENTRIES."""
-    from . import _cpu_tiles as kt
-
+def tile_camera(cam, i2w):
+    """Per object: cmat (3x4, index space -> camera coordinates relative to the camera position)
+    and onorm (the spectral norm of its index-to-world linear part), as gauss_footprints takes."""
     rot = np.asarray(cam[7:16], np.float64).reshape(3, 3)
     pos = np.asarray(cam[16:19], np.float64)
     rinv = np.linalg.inv(rot)
@@ -490,6 +491,16 @@ def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k):
         cmat[j, :, :3] = rinv @ mw[:3, :3]
         cmat[j, :, 3] = rinv @ (mw[:3, 3] - pos)
         onorm[j] = np.linalg.norm(mw[:3, :3], 2)
+    return cmat, onorm
+
+
+def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k):
+    """The screen-tile lists (_cpu_tiles) of Gaussians with weights g_w for the packed camera cam
+    and the objects' index -> world matrices i2w: starts, ids, pixel masks and each Gaussian's
+    entry bound; None when they would pass MAX_TILE_ENTRIES."""
+    from . import _cpu_tiles as kt
+
+    cmat, onorm = tile_camera(cam, i2w)
     m = g_mu.shape[0]
     box = np.empty((m, 4), np.int32)
     lb = np.empty(m)

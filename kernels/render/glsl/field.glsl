@@ -213,7 +213,7 @@ bool trace_tiles(float tn, float tf, inout State st)
     if (g < 0) {
       continue;
     }
-    float lbg = g_rec1(g).w;
+    float lbg = entry_bound(g);
     if (nh >= swept + BATCH && q0 < nq && q_t[q0] < lbg) {
       swept = nh;
       if (sweep_field(st, lbg)) {

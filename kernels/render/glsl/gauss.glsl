@@ -17,6 +17,11 @@ float g_value(int g) { return texel(g_aux, 2 * g).a; }  /* 0 when NaN */
 float g_vweight(int g) { return texel(g_aux, 2 * g + 1).r; }  /* 0 when NaN */
 int g_object(int g) { return int(texel(g_aux, 2 * g + 1).g); }
 
+#ifdef GPU_TILES
+float entry_bound(int g) { return texel(t_lb, g).x; }  /* lists built on the GPU (tiles.glsl) */
+#else
+float entry_bound(int g) { return g_rec1(g).w; }
+#endif
 int tile_first(int tl) { return int(scalar(t_start, tl)); }
 /* entry q of the tile lists: its Gaussian, or -1 when pixel bit `bit` is not in its mask */
 int tile_entry(int q, int bit) {

@@ -149,7 +149,7 @@ bool trace_tiles(float tn, float tf, inout State st) {
   for (int q = tile_first(tl); q < t1; q++) {
     int g = tile_entry(q, bit);
     if (g < 0) continue;
-    float lbg = g_rec1(g).w;
+    float lbg = entry_bound(g);
     if (nh >= swept + BATCH && ((q0 < nq && q_t[q0] < lbg) || (nm > 0 && s_cend <= lbg))) {
       swept = nh;
       if (sweep_particles(st, lbg, tau_max)) return true;
