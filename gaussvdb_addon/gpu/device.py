@@ -38,7 +38,7 @@ STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 class GPUDevice(kdevice.Device):
     name = "GPU"
 
-    def __init__(self, threads=None, cache_dir=None, gpu_tiles=False, **kw):
+    def __init__(self, threads=None, cache_dir=None, gpu_tiles=True, **kw):
         self.cpu = kdevice.CPUDevice(threads=threads, cache_dir=cache_dir, **kw)
         self.gpu_tiles = bool(gpu_tiles)  # the Gaussian modes' screen-tile lists built here (tiles.py)
         self._geom = None  # (key, Tables, textures)

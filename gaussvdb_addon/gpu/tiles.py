@@ -8,29 +8,23 @@ import numpy as np
 from ...kernels.render import gpu_layout, gpu_layout_tiles
 from . import compute
 
-GROUP = 64  # invocations per work group (one Gaussian or one tile each)
-# the sort's divergent loops over image loads and stores ran wrongly in llvmpipe's wide groups
-# (tiles out of order): one tile per group there
+GROUP = 64  # invocations per work group (one Gaussian or one entry each)
+# gpu.compute.dispatch ends with a texture-fetch and image-access barrier: each pass sees the last
 _SHADERS = {}
 # stage: (samplers, images (name, format, kind, qualifiers), ints)
 ATOMIC = ("R32UI", "UINT_2D_ATOMIC", {"READ", "WRITE"})
 STAGES = {
     "FOOT": (("tl_g", "tl_par"), (("tl_box", "RGBA32F", "FLOAT_2D", {"WRITE"}),
                                   ("t_lb", "RGBA32F", "FLOAT_2D", {"WRITE"}), ("cnt",) + ATOMIC), ("n_g",)),
-    "FILL": (("tl_box", "t_start"), (("cnt",) + ATOMIC, ("t_ent", "RGBA32F", "FLOAT_2D", {"WRITE"})),
-             ("n_g", "ntx")),
-    "SORT": (("t_start", "t_lb"), (("t_ent", "RGBA32F", "FLOAT_2D", {"READ", "WRITE"}),), ("n_tiles",)),
+    "FILL": (("tl_box", "t_start"), (("cnt",) + ATOMIC, ("t_raw", "RGBA32F", "FLOAT_2D", {"WRITE"}),
+                                     ("t_tile", "RGBA32F", "FLOAT_2D", {"WRITE"})), ("n_g", "ntx")),
+    "SORT": (("t_start", "t_lb", "t_raw", "t_tile"), (("t_ent", "RGBA32F", "FLOAT_2D", {"WRITE"}),),
+             ("n_ent",)),
 }
 
 
 class TooMany(Exception):
     """The lists pass what this GPU's textures (or exact float ids) hold: use the CPU's."""
-
-
-def _group(stage):
-    import gpu
-
-    return 1 if stage == "SORT" and "llvmpipe" in gpu.platform.renderer_get() else GROUP
 
 
 def _shader(stage):
@@ -48,7 +42,7 @@ def _shader(stage):
             info.push_constant("INT", name)
         info.define(f"STAGE_{stage}", "1")
         info.define("ROW_TEXELS", str(gpu_layout.ROW_TEXELS))
-        info.local_group_size(_group(stage), 1)
+        info.local_group_size(GROUP, 1)
         info.compute_source(compute.glsl("tiles.glsl"))
         sh = _SHADERS[stage] = gpu.shader.create_from_info(info)
     return sh
@@ -66,7 +60,7 @@ def _run(stage, n, tex, ints):
         sh.image(name, tex[name])
     for name, v in ints.items():
         sh.uniform_int(name, int(v))
-    groups = max(1, -(-n // _group(stage)))
+    groups = max(1, -(-n // GROUP))
     gx = min(groups, gpu.capabilities.max_work_group_count_get(0))
     gpu.compute.dispatch(sh, gx, -(-groups // gx), 1)
 
@@ -107,8 +101,8 @@ def build(frame):
     if total >= gpu_layout.EXACT or -(-max(total, 1) // gpu_layout.ROW_TEXELS) > limit:
         raise TooMany(f"{total} tile entries")
     tex.update(compute.upload({"t_start": gpu_layout.fold_scalars(start)}))
-    tex.update(t_ent=_table(max(total, 1)), cnt=_counter(ntx, nty))
+    n = max(total, 1)
+    tex.update(t_raw=_table(n), t_tile=_table(n), t_ent=_table(n), cnt=_counter(ntx, nty))
     _run("FILL", m, tex, {"n_g": m, "ntx": ntx})
-    tex["cnt"].read()  # waits for the fill (the Python API has no memory barrier to ask for)
-    _run("SORT", ntx * nty, tex, {"n_tiles": ntx * nty})
+    _run("SORT", total, tex, {"n_ent": total})
     return {k: tex[k] for k in ("t_start", "t_ent", "t_lb")}, total

@@ -3,8 +3,8 @@
  * FOOT (one invocation per Gaussian): pixel rectangle and entry bound, entries counted per
  *   tile with imageAtomicAdd; the host reads the counts back for the prefix sum (t_start);
  * FILL (per Gaussian): each entry's slot from a second atomic counter per tile, written with
- *   its pixel mask (gpu_layout_gauss.tile_tables' layout);
- * SORT (per tile): insertion sort of the tile's entries by (entry bound, id).
+ *   its pixel mask (gpu_layout_gauss.tile_tables' layout) and its tile;
+ * SORT (per entry): its place in its tile by (entry bound, id), from its rank there.
  * Float32 rounding: the rectangle is widened by MARGIN_PX and the bound lowered a little more
  * than the CPU's, so every Gaussian the CPU lists in a tile is listed here too. */
 #define TILE 8
@@ -134,35 +134,30 @@ void main()
         if (y < 4) lo |= row << uint(TILE * y); else hi |= row << uint(TILE * (y - 4));
       }
       uint p0 = lo & 0x3FFFFFu, p1 = (lo >> 22u) | ((hi & 0xFFFu) << 10u), p2 = hi >> 12u;
-      imageStore(t_ent, at(q), vec4(float(g), float(p0), float(p1), float(p2)));
+      imageStore(t_raw, at(q), vec4(float(g), float(p0), float(p1), float(p2)));
+      imageStore(t_tile, at(q), vec4(float(ty * ntx + tx), 0.0, 0.0, 0.0));
     }
   }
 }
 #endif
 
 #ifdef STAGE_SORT
-float key(vec4 e) { return texel(t_lb, int(e.x)).x; }
-
+/* one invocation per entry: its rank in its tile by (entry bound, id), counted over the tile's
+ * unsorted entries (reads only: no image read after write, which llvmpipe ran out of order) */
 void main()
 {
-  int t = invocation();
-  if (t >= n_tiles) return;
+  int q = invocation();
+  if (q >= n_ent) return;
+  vec4 e = texel(t_raw, q);
+  int t = int(texel(t_tile, q).x);
   int a = int(scalar(t_start, t)), b = int(scalar(t_start, t + 1));
-  for (int i = a + 1; i < b; i++) {
-    vec4 e = imageLoad(t_ent, at(i));
-    float ke = key(e);
-    int j = i;
-    bool moving = true;  /* (a flag, not break: llvmpipe mis-ran a break in this loop) */
-    while (j > a && moving) {
-      vec4 p = imageLoad(t_ent, at(j - 1));
-      float kp = key(p);
-      moving = !(kp < ke || (kp == ke && p.x < e.x));
-      if (moving) {
-        imageStore(t_ent, at(j), p);
-        j--;
-      }
-    }
-    imageStore(t_ent, at(j), e);
+  float ke = texel(t_lb, int(e.x)).x;
+  int rank = 0;
+  for (int i = a; i < b; i++) {
+    float gi = texel(t_raw, i).x;
+    float ki = texel(t_lb, int(gi)).x;
+    rank += (ki < ke || (ki == ke && gi < e.x)) ? 1 : 0;
   }
+  imageStore(t_ent, at(a + rank), e);
 }
 #endif
