@@ -5,9 +5,10 @@ the GPU (compute shaders), in the same run.
                                          [--lod medium] [--repeat 3]
 
 Per file: ms per whole frame (best of --repeat after a warm-up: the CPU-side set-up, the lists,
-uploads, the dispatch and the readback) with each kind of list, and the dispatch alone (the lists kept); ms to build the lists alone (CPU:
-device.screen_tiles and the tables; GPU: the three passes and a readback of the entries, which
-waits for them); the entries, and the GPU's name (llvmpipe is a software one)."""
+uploads, the dispatch and the readback) with each kind of list, and the dispatch alone (the lists
+kept); ms to build the lists alone (CPU: device.screen_tiles and the tables; GPU: the three passes
+and a readback of the entries, which waits for them); the entries, and the GPU's name (llvmpipe
+is a software one)."""
 from __future__ import annotations
 
 import argparse

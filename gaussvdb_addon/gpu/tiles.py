@@ -10,6 +10,7 @@ from . import compute
 
 GROUP = 64  # invocations per work group (one Gaussian or one entry each)
 # gpu.compute.dispatch ends with a texture-fetch and image-access barrier: each pass sees the last
+MAX_ENTRIES = int(gpu_layout.EXACT) - 1  # entries one frame's GPU lists hold (ids are exact floats)
 _SHADERS = {}
 # stage: (samplers, images (name, format, kind, qualifiers), ints)
 ATOMIC = ("R32UI", "UINT_2D_ATOMIC", {"READ", "WRITE"})
@@ -98,7 +99,7 @@ def build(frame):
     buf.dimensions = ntx * nty
     start = gpu_layout_tiles.starts(np.frombuffer(buf, np.uint32).reshape(nty, ntx))
     total = int(start[-1])
-    if total >= gpu_layout.EXACT or -(-max(total, 1) // gpu_layout.ROW_TEXELS) > limit:
+    if total > MAX_ENTRIES or -(-max(total, 1) // gpu_layout.ROW_TEXELS) > limit:
         raise TooMany(f"{total} tile entries")
     tex.update(compute.upload({"t_start": gpu_layout.fold_scalars(start)}))
     n = max(total, 1)

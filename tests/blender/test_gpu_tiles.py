@@ -61,3 +61,26 @@ def test_gpu_lists_hold_the_cpu_lists(mods, name):
             assert np.all((got & e[1:].astype(np.int64)) == e[1:].astype(np.int64)), f"tile {t}: mask"
         listed += len(c_ids)
     assert listed > 100  # lists to compare
+
+
+def test_lists_past_the_gpu_limit_come_from_the_cpu(mods):
+    """More entries than the GPU's lists may hold: the CPU's lists are uploaded instead and the
+    image still matches the CPU device."""
+    from test_gpu_gauss import MIN_DB, psnr
+
+    from kernels.render import CPUDevice
+
+    _, device, tiles = mods
+    sc = RenderScene(scenes()["fog"], mode="particles")
+    want = CPUDevice().render(sc, CAM, TF)
+    dev = device.GPUDevice()
+    keep = tiles.MAX_ENTRIES
+    tiles.MAX_ENTRIES = 10
+    try:
+        got = dev.render(sc, CAM, TF)
+    finally:
+        tiles.MAX_ENTRIES = keep
+    assert dev.stats["tile_lists"] == "CPU" and dev.stats["gpu_tile_entries"] > 10
+    assert psnr(got["Combined"], want["Combined"]) >= MIN_DB
+    got = dev.render(RenderScene(scenes()["two objects"], mode="particles"), CAM, TF)
+    assert dev.stats["tile_lists"] == "GPU"
