@@ -33,6 +33,11 @@ MODES = {"reference": ModeSpec("reference.glsl", ("WALK",), True),
          "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP"), False),
          "paper": ModeSpec(("gauss.glsl", "paper.glsl"), (), False)}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
+NO_LISTS = "no screen-tile lists"  # the fallback's word when neither device's lists fit
+
+
+class NoLists(Exception):
+    """The frame's screen-tile lists pass what the GPU and the CPU build: the CPU device draws it."""
 
 
 class GPUDevice(kdevice.Device):
@@ -136,8 +141,7 @@ class GPUDevice(kdevice.Device):
         except tiles.TooMany as e:
             t = gpu_layout_tiles.cpu_lists(frame)
             if t is None:
-                raise ValueError(f"the screen-tile lists ({e}) pass what one frame holds; "
-                                 "use the CPU device") from None
+                raise NoLists(str(e)) from None
             self.stats.update(gpu_tile_entries=int(t["t_ent"].size // 4), tile_lists="CPU")
             return compute.upload(t)
 
@@ -190,7 +194,13 @@ class GPUDevice(kdevice.Device):
                     progress(a / nr)
 
         if nr and nc:
-            context.run(draw)
+            try:
+                context.run(draw)
+            except NoLists:  # (a camera inside a dense volume): the CPU's leaf walk draws it
+                out = self._cpu_render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
+                                       cancel=cancel)
+                self.stats = dict(self.cpu.stats, fallback=NO_LISTS)
+                return out
             self.stats["overflow_tiles"] = self._overflow(scene, camera, tf, rgba, dv, r0, c0)
         self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
                           segments=0.0, cancelled=bool(cancelled), threads=1, gpu=self.renderer)
@@ -208,7 +218,10 @@ class GPUDevice(kdevice.Device):
         frame = self.begin_frame(scene, camera, tf)
         if self.fallback(frame) is not None:
             return None
-        return self._dispatch(frame, (0, frame.height), (0, frame.width))[0]
+        try:
+            return self._dispatch(frame, (0, frame.height), (0, frame.width))[0]
+        except NoLists:
+            return None
 
 
 def register_device():

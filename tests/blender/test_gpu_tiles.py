@@ -84,3 +84,25 @@ def test_lists_past_the_gpu_limit_come_from_the_cpu(mods):
     assert psnr(got["Combined"], want["Combined"]) >= MIN_DB
     got = dev.render(RenderScene(scenes()["two objects"], mode="particles"), CAM, TF)
     assert dev.stats["tile_lists"] == "GPU"
+
+
+def test_lists_past_both_limits_go_to_the_cpu_device(mods):
+    """Lists too long for the GPU and for the CPU's lists too (a camera inside a dense volume):
+    the CPU device draws the frame with its leaf walk, and says so."""
+    from test_gpu_gauss import MIN_DB, psnr
+
+    from kernels.render import CPUDevice
+
+    _, device, tiles = mods
+    kdevice = device.kdevice  # the extension's own copy of kernels.render.device
+    sc = RenderScene(scenes()["fog"], mode="particles")
+    want = CPUDevice().render(sc, CAM, TF)
+    dev = device.GPUDevice()
+    keep = tiles.MAX_ENTRIES, kdevice.MAX_TILE_ENTRIES
+    tiles.MAX_ENTRIES = kdevice.MAX_TILE_ENTRIES = 10
+    try:
+        got = dev.render(sc, CAM, TF)
+    finally:
+        tiles.MAX_ENTRIES, kdevice.MAX_TILE_ENTRIES = keep
+    assert dev.stats["fallback"] == device.NO_LISTS
+    assert psnr(got["Combined"], want["Combined"]) >= MIN_DB
