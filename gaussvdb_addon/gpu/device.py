@@ -122,14 +122,15 @@ class GPUDevice(kdevice.Device):
             tex = compute.upload(t.textures)
             if gpu_layout_gauss.on_gpu(frame):
                 tex.update(self._tile_lists(frame))
-                t.textures.update({n: np.zeros((1, 1, 4), np.float32) for n in ("t_start", "t_ent", "t_lb")})
+                t.textures.update({n: np.zeros((1, 1, 4), np.float32) for n in tiles.LISTS})  # names, kinds
             self._up = (frame.key, t, tex)
         _, gt, gtex = self._geom
         _, ft, ftex = self._up
         ints = dict(gt.ints, **ft.ints)
         tex = dict(gtex, **ftex)
         arrays = dict(gt.textures, **ft.textures)
-        self.stats["gpu_bytes"] = gpu_layout.nbytes(gt) + gpu_layout.nbytes(ft)
+        self.stats["gpu_bytes"] = gpu_layout.nbytes(gt) + gpu_layout.nbytes(ft) + sum(
+            16 * ftex[n].width * ftex[n].height for n in tiles.LISTS if gpu_layout_gauss.on_gpu(frame))
         return name, spec, arrays, tex, ints
 
     def _tile_lists(self, frame):

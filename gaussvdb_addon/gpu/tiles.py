@@ -10,6 +10,7 @@ from . import compute
 
 GROUP = 64  # invocations per work group (one Gaussian or one entry each)
 # gpu.compute.dispatch ends with a texture-fetch and image-access barrier: each pass sees the last
+LISTS = ("t_start", "t_ent", "t_lb")  # what build() returns (RGBA32F tables)
 MAX_ENTRIES = int(gpu_layout.EXACT) - 1  # entries one frame's GPU lists hold (ids are exact floats)
 _SHADERS = {}
 # stage: (samplers, images (name, format, kind, qualifiers), ints)
@@ -106,4 +107,4 @@ def build(frame):
     tex.update(t_raw=_table(n), t_tile=_table(n), t_ent=_table(n), cnt=_counter(ntx, nty))
     _run("FILL", m, tex, {"n_g": m, "ntx": ntx})
     _run("SORT", total, tex, {"n_ent": total})
-    return {k: tex[k] for k in ("t_start", "t_ent", "t_lb")}, total
+    return {k: tex[k] for k in LISTS}, total
