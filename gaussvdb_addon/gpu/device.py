@@ -7,6 +7,10 @@ Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, 
 its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
 device does not draw (lit volumes in a mode without ``lit``; modes without an entry) are said in
 ``fallback(frame)``: lit frames go to the CPU device, missing modes raise.
+
+The Gaussian modes' screen-tile lists are built here on the GPU (tiles.py; the CPU device's frame
+then has none: ``tiles_elsewhere``); lists too long for the GPU come from the CPU device, and a
+frame too long for both is drawn by it. ``GPUDevice(gpu_tiles=False)`` uploads the CPU's lists.
 """
 from __future__ import annotations
 
@@ -17,11 +21,7 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import (  # the latter adds the Gaussian modes to MODE_TABLES
-    gpu_layout,
-    gpu_layout_gauss,
-    gpu_layout_tiles,
-)
+from ...kernels.render import gpu_layout, gpu_layout_gauss, gpu_layout_tiles  # _gauss: the Gaussian modes' tables
 from . import compute, context, tiles
 
 # glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
