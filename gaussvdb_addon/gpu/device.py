@@ -7,6 +7,10 @@ Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, 
 its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
 device does not draw (lit volumes in a mode without ``lit``; modes without an entry) are said in
 ``fallback(frame)``: frames the GPU cannot draw exactly (see there) go to the CPU device.
+
+The Gaussian modes' screen-tile lists are built here on the GPU (tiles.py; the CPU device's frame
+then has none: ``tiles_elsewhere``); lists too long for the GPU come from the CPU device, and a
+frame too long for both is drawn by it. ``GPUDevice(gpu_tiles=False)`` uploads the CPU's lists.
 """
 from __future__ import annotations
 
@@ -17,8 +21,8 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import gpu_layout, gpu_layout_gauss  # the latter adds the Gaussian modes to MODE_TABLES
-from . import compute, context
+from ...kernels.render import gpu_layout, gpu_layout_gauss, gpu_layout_tiles  # _gauss: the Gaussian modes' tables
+from . import compute, context, tiles
 
 # glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
 # ONE_PER_GROUP: one pixel per work group on llvmpipe); lit: whether it shades lit volumes (else
@@ -29,13 +33,19 @@ MODES = {"reference": ModeSpec("reference.glsl", ("WALK",), True),
          "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP"), False),
          "paper": ModeSpec(("gauss.glsl", "paper.glsl"), (), False)}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
+NO_LISTS = "no screen-tile lists"  # the fallback's word when neither device's lists fit
+
+
+class NoLists(Exception):
+    """The frame's screen-tile lists pass what the GPU and the CPU build: the CPU device draws it."""
 
 
 class GPUDevice(kdevice.Device):
     name = "GPU"
 
-    def __init__(self, threads=None, cache_dir=None, **kw):
+    def __init__(self, threads=None, cache_dir=None, gpu_tiles=True, **kw):
         self.cpu = kdevice.CPUDevice(threads=threads, cache_dir=cache_dir, **kw)
+        self.gpu_tiles = bool(gpu_tiles)  # the Gaussian modes' screen-tile lists built here (tiles.py)
         self._geom = None  # (key, Tables, textures)
         self._up = None  # (frame key, Tables, textures)
         self._out = None  # the last output textures (reused while the band size stays)
@@ -47,7 +57,10 @@ class GPUDevice(kdevice.Device):
         self.stats["seconds_sync"] = self.cpu.stats.get("seconds_sync", 0.0)
 
     def begin_frame(self, scene, camera, tf):
+        self.cpu.tiles_elsewhere = self.gpu_tiles
         frame = self.cpu.begin_frame(scene, camera, tf)
+        frame.tiles_on_gpu = (self.gpu_tiles and int(frame.mode) <= Mode.PAPER
+                              and frame.gauss.mu.shape[0] > 0)
         self.stats["seconds_setup"] = self.cpu.stats.get("seconds_setup", 0.0)
         return frame
 
@@ -73,11 +86,16 @@ class GPUDevice(kdevice.Device):
             return gpu_layout_gauss.unsupported(frame)
         return None
 
+    def _cpu_render(self, *args, **kw):
+        """The CPU device's image (its frame then has its own screen-tile lists)."""
+        self.cpu.tiles_elsewhere = False
+        return self.cpu.render(*args, **kw)
+
     def _overflow(self, scene, camera, tf, rgba, dv, r0, c0):
         """Redraw on the CPU device the screen tiles with a ray that ran out of hit slots."""
         tiles = gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0)
         for (a, b), (c, d) in tiles:
-            out = self.cpu.render(scene, camera, tf, rows=(a, b), cols=(c, d))
+            out = self._cpu_render(scene, camera, tf, rows=(a, b), cols=(c, d))
             rgba[a - r0:b - r0, c - c0:d - c0] = out["Combined"]
             dv[a - r0:b - r0, c - c0:d - c0, 0] = out.get("Depth", 1e10)
             dv[a - r0:b - r0, c - c0:d - c0, 1] = out.get("Value", 0.0)
@@ -101,19 +119,39 @@ class GPUDevice(kdevice.Device):
             self._geom = (gkey, t, compute.upload(t.textures))
         if self._up is None or self._up[0] != frame.key:
             t = frame_fn(frame)
-            self._up = (frame.key, t, compute.upload(t.textures))
+            tex = compute.upload(t.textures)
+            if gpu_layout_gauss.on_gpu(frame):
+                tex.update(self._tile_lists(frame))
+                t.textures.update({n: np.zeros((1, 1, 4), np.float32) for n in tiles.LISTS})  # names, kinds
+            self._up = (frame.key, t, tex)
         _, gt, gtex = self._geom
         _, ft, ftex = self._up
         ints = dict(gt.ints, **ft.ints)
         tex = dict(gtex, **ftex)
         arrays = dict(gt.textures, **ft.textures)
-        self.stats["gpu_bytes"] = gpu_layout.nbytes(gt) + gpu_layout.nbytes(ft)
+        self.stats["gpu_bytes"] = gpu_layout.nbytes(gt) + gpu_layout.nbytes(ft) + sum(
+            16 * ftex[n].width * ftex[n].height for n in tiles.LISTS if gpu_layout_gauss.on_gpu(frame))
         return name, spec, arrays, tex, ints
+
+    def _tile_lists(self, frame):
+        """t_start, t_ent, t_lb built on the GPU; the CPU's lists uploaded when they do not fit."""
+        try:
+            lists, n = tiles.build(frame)
+            self.stats.update(gpu_tile_entries=n, tile_lists="GPU")
+            return lists
+        except tiles.TooMany as e:
+            t = gpu_layout_tiles.cpu_lists(frame)
+            if t is None:
+                raise NoLists(str(e)) from None
+            self.stats.update(gpu_tile_entries=int(t["t_ent"].size // 4), tile_lists="CPU")
+            return compute.upload(t)
 
     def _dispatch(self, frame, rows, cols):
         import gpu
 
         name, spec, arrays, tex, ints = self._tables(frame)
+        if gpu_layout_gauss.on_gpu(frame):
+            spec = spec._replace(defines=spec.defines + ("GPU_TILES",))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
@@ -124,8 +162,8 @@ class GPUDevice(kdevice.Device):
         frame = self.begin_frame(scene, camera, tf)
         why = self.fallback(frame)
         if why is not None:
-            out = self.cpu.render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
-                                  cancel=cancel)
+            out = self._cpu_render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
+                                   cancel=cancel)
             self.stats = dict(self.cpu.stats, fallback=why)
             return out
         t_setup = self.stats["seconds_setup"]
@@ -157,7 +195,13 @@ class GPUDevice(kdevice.Device):
                     progress(a / nr)
 
         if nr and nc:
-            context.run(draw)
+            try:
+                context.run(draw)
+            except NoLists:  # (a camera inside a dense volume): the CPU's leaf walk draws it
+                out = self._cpu_render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
+                                       cancel=cancel)
+                self.stats = dict(self.cpu.stats, fallback=NO_LISTS)
+                return out
             self.stats["overflow_tiles"] = self._overflow(scene, camera, tf, rgba, dv, r0, c0)
         self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
                           segments=0.0, cancelled=bool(cancelled), threads=1, gpu=self.renderer)
@@ -175,7 +219,10 @@ class GPUDevice(kdevice.Device):
         frame = self.begin_frame(scene, camera, tf)
         if self.fallback(frame) is not None:
             return None
-        return self._dispatch(frame, (0, frame.height), (0, frame.width))[0]
+        try:
+            return self._dispatch(frame, (0, frame.height), (0, frame.width))[0]
+        except NoLists:
+            return None
 
 
 def register_device():

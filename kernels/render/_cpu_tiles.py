@@ -207,10 +207,9 @@ def tile_fill(box, lb, cnt, start, ntx):
     return items, masks
 
 
-def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k, limit):
-    """The screen-tile lists (above) of Gaussians with weights g_w for the packed camera cam
-    and the objects' index -> world matrices i2w: starts, ids, pixel masks and each Gaussian's
-    entry bound; None when they would hold more than limit entries."""
+def tile_camera(cam, i2w):
+    """Per object: cmat (3x4, index space -> camera coordinates relative to the camera position)
+    and onorm (the spectral norm of its index-to-world linear part), as gauss_footprints takes."""
     rot = np.asarray(cam[7:16], np.float64).reshape(3, 3)
     pos = np.asarray(cam[16:19], np.float64)
     rinv = np.linalg.inv(rot)
@@ -221,6 +220,14 @@ def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k, limit):
         cmat[j, :, :3] = rinv @ mw[:3, :3]
         cmat[j, :, 3] = rinv @ (mw[:3, 3] - pos)
         onorm[j] = np.linalg.norm(mw[:3, :3], 2)
+    return cmat, onorm
+
+
+def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k, limit):
+    """The screen-tile lists (above) of Gaussians with weights g_w for the packed camera cam
+    and the objects' index -> world matrices i2w: starts, ids, pixel masks and each Gaussian's
+    entry bound; None when they would hold more than limit entries."""
+    cmat, onorm = tile_camera(cam, i2w)
     m = g_mu.shape[0]
     box = np.empty((m, 4), np.int32)
     lb = np.empty(m)

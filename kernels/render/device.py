@@ -81,6 +81,7 @@ class CPUDevice(Device):
         self._k = _cpu
         self._kt = _cpu_tiles
         self.screen_tiles = bool(screen_tiles)  # particles/field: screen tiles, else the leaf walk
+        self.tiles_elsewhere = False  # a GPU device builds the frame's screen-tile lists itself
         self.threads = threads
         self.tile_rows = tile_rows  # rows per step with progress/cancel (None: see render)
         self._key = None
@@ -285,6 +286,8 @@ class CPUDevice(Device):
         m = A.g_mu.shape[0]
         if not self.screen_tiles or m == 0 or mode > Mode.FIELD:
             return none
+        if self.tiles_elsewhere:  # no lists, no leaf walk: this frame is only drawn elsewhere
+            return packing.NO_TILES + (np.zeros(m),)
         i2w = [np.asarray(o.matrix_world, np.float64) for o in scene.objects]
         tiles = self._kt.screen_tiles(camera.packed(), i2w, A.g_mu, A.g_inv, A.g_obj, g_w,
                                       float(scene.support_k), MAX_TILE_ENTRIES)
@@ -298,7 +301,8 @@ class CPUDevice(Device):
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
                   objects.clip, objects.lit, transfer.lights, transfer.settings, objects.ctf,
                   objects.cbg)
-        return (self._sync_count, mode, bool(self.screen_tiles), camera.packed().tobytes()) + tuple(
+        return (self._sync_count, mode, bool(self.screen_tiles), self.tiles_elsewhere,
+                camera.packed().tobytes()) + tuple(
             np.ascontiguousarray(a).tobytes() for a in tables)
 
     def begin_frame(self, scene, camera, tf):

@@ -142,10 +142,18 @@ def unsupported(frame) -> str | None:
     rec = frame.gauss.rec
     if (bad_sizes(rec[:, 3:6]) & (rec[:, 6] != 0)).any():
         return "a Gaussian too small or large for the GPU's size codes"
+    if on_gpu(frame):  # the device checks the entries' count when it builds them
+        return check_exact(gaussians=[frame.gauss.rec.shape[0]])
     tiles = frame_tiles(frame)
     if tiles is None:
         return "no screen-tile lists"
     return check_exact(tile_entries=tiles[0][-1:], gaussians=[frame.gauss.rec.shape[0]])
+
+
+def on_gpu(frame):
+    """Whether the device builds this frame's screen-tile lists itself (gpu/tiles.py): then
+    they are not uploaded, and the entry bounds come in t_lb."""
+    return getattr(frame, "tiles_on_gpu", False)
 
 
 def overflow_tiles(depth, row0=0, col0=0):
@@ -171,7 +179,8 @@ def particles_frame(frame):
     """Common tables, the Gaussians and the screen-tile lists (particles, paper)."""
     t = gpu_layout.common_tables(frame)
     t.textures.update(gauss_tables(frame.mode, frame.gauss))
-    t.textures.update(tile_tables(*frame_tiles(frame)))
+    if not on_gpu(frame):
+        t.textures.update(tile_tables(*frame_tiles(frame)))
     return t
 
 

@@ -215,7 +215,7 @@ bool trace_tiles(float tn, float tf, inout State st)
       continue;
     }
     Gauss G = gauss_at(g);
-    float lbg = G.bound;
+    float lbg = entry_bound(G, g);
     if (nh >= swept + BATCH && q0 < nq && q_t[q0] < lbg) {
       swept = nh;
       if (sweep_field(st, lbg)) {

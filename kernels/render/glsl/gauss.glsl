@@ -38,6 +38,11 @@ vec3 g_color(Gauss G)
   return G.has_val ? lut_at(g_tfi[ob], tf_x(G.val, g_par[ob])).rgb : vec3(0.0);
 }
 
+#ifdef GPU_TILES
+float entry_bound(Gauss G, int g) { return texel(t_lb, g).x; }  /* lists built on the GPU (tiles.glsl) */
+#else
+float entry_bound(Gauss G, int g) { return G.bound; }
+#endif
 int tile_first(int tl) { return int(scalar(t_start, tl)); }
 /* entry q of the tile lists: its Gaussian, or -1 when pixel bit `bit` is not in its mask */
 int tile_entry(int q, int bit) {

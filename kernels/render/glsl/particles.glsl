@@ -150,7 +150,7 @@ bool trace_tiles(float tn, float tf, inout State st) {
     int g = tile_entry(q, bit);
     if (g < 0) continue;
     Gauss G = gauss_at(g);
-    float lbg = G.bound;
+    float lbg = entry_bound(G, g);
     if (nh >= swept + BATCH && ((q0 < nq && q_t[q0] < lbg) || (nm > 0 && s_cend <= lbg))) {
       swept = nh;
       if (sweep_particles(st, lbg, tau_max)) return true;

@@ -1,0 +1,110 @@
+"""The frame's screen-tile lists built on the GPU (glsl/tiles.glsl): footprints, entry bounds and
+per-tile counts, one small readback of the counts for the prefix sum (numpy), the fill and the
+per-tile sort. Call inside a GPU context (context.run)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ...kernels.render import gpu_layout, gpu_layout_tiles
+from . import compute
+
+GROUP = 64  # invocations per work group (one Gaussian or one entry each)
+# gpu.compute.dispatch ends with a texture-fetch and image-access barrier: each pass sees the last
+LISTS = ("t_start", "t_ent", "t_lb")  # what build() returns (RGBA32F tables)
+MAX_ENTRIES = int(gpu_layout.EXACT) - 1  # entries one frame's GPU lists hold (ids are exact floats)
+_SHADERS = {}
+# stage: (samplers, images (name, format, kind, qualifiers), ints)
+ATOMIC = ("R32UI", "UINT_2D_ATOMIC", {"READ", "WRITE"})
+STAGES = {
+    "FOOT": (("tl_g", "tl_par"), (("tl_box", "RGBA32F", "FLOAT_2D", {"WRITE"}),
+                                  ("t_lb", "RGBA32F", "FLOAT_2D", {"WRITE"}), ("cnt",) + ATOMIC), ("n_g",)),
+    "FILL": (("tl_box", "t_start"), (("cnt",) + ATOMIC, ("t_raw", "RGBA32F", "FLOAT_2D", {"WRITE"}),
+                                     ("t_tile", "RGBA32F", "FLOAT_2D", {"WRITE"})), ("n_g", "ntx")),
+    "SORT": (("t_start", "t_lb", "t_raw", "t_tile"), (("t_ent", "RGBA32F", "FLOAT_2D", {"WRITE"}),),
+             ("n_ent",)),
+}
+
+
+class TooMany(Exception):
+    """The lists pass what this GPU's textures (or exact float ids) hold: use the CPU's."""
+
+
+def _shader(stage):
+    import gpu
+
+    sh = _SHADERS.get(stage)
+    if sh is None:
+        samplers, images, ints = STAGES[stage]
+        info = gpu.types.GPUShaderCreateInfo()
+        for slot, (name, fmt, kind, qual) in enumerate(images):
+            info.image(slot, fmt, kind, name, qualifiers=qual)
+        for slot, name in enumerate(samplers):
+            info.sampler(slot, "FLOAT_2D", name)
+        for name in ints:
+            info.push_constant("INT", name)
+        info.define(f"STAGE_{stage}", "1")
+        info.define("ROW_TEXELS", str(gpu_layout.ROW_TEXELS))
+        info.local_group_size(GROUP, 1)
+        info.compute_source(compute.glsl("tiles.glsl"))
+        sh = _SHADERS[stage] = gpu.shader.create_from_info(info)
+    return sh
+
+
+def _run(stage, n, tex, ints):
+    import gpu
+
+    sh = _shader(stage)
+    sh.bind()
+    samplers, images, _ = STAGES[stage]
+    for name in samplers:
+        sh.uniform_sampler(name, tex[name])
+    for name, *_ in images:
+        sh.image(name, tex[name])
+    for name, v in ints.items():
+        sh.uniform_int(name, int(v))
+    groups = max(1, -(-n // GROUP))
+    gx = min(groups, gpu.capabilities.max_work_group_count_get(0))
+    gpu.compute.dispatch(sh, gx, -(-groups // gx), 1)
+
+
+def _table(n):
+    """An empty RGBA32F table texture of n texels (gpu_layout's fold: ROW_TEXELS wide)."""
+    import gpu
+
+    return gpu.types.GPUTexture((gpu_layout.ROW_TEXELS, max(1, -(-n // gpu_layout.ROW_TEXELS))),
+                                format="RGBA32F")
+
+
+def _counter(ntx, nty):
+    import gpu
+
+    t = gpu.types.GPUTexture((ntx, nty), format="R32UI")
+    t.clear(format="UINT", value=(0,))
+    return t
+
+
+def build(frame):
+    """{t_start, t_ent, t_lb: GPUTexture} for the frame, and the entries' count; TooMany when
+    they do not fit."""
+    import gpu
+
+    m = int(frame.gauss.mu.shape[0])
+    ntx, nty = gpu_layout_tiles.tile_grid(frame)
+    limit = gpu.capabilities.max_texture_size_get()
+    if max(ntx, nty) > limit or -(-m // gpu_layout.ROW_TEXELS) > limit:
+        raise TooMany(f"{ntx}x{nty} tiles, {m} Gaussians")
+    tex = compute.upload(gpu_layout_tiles.tile_inputs(frame))
+    tex.update(tl_box=_table(m), t_lb=_table(m), cnt=_counter(ntx, nty))
+    _run("FOOT", m, tex, {"n_g": m})
+    buf = tex["cnt"].read()
+    buf.dimensions = ntx * nty
+    start = gpu_layout_tiles.starts(np.frombuffer(buf, np.uint32).reshape(nty, ntx))
+    total = int(start[-1])
+    if total > MAX_ENTRIES or -(-max(total, 1) // gpu_layout.ROW_TEXELS) > limit:
+        raise TooMany(f"{total} tile entries")
+    tex.update(compute.upload({"t_start": gpu_layout.fold_scalars(start)}))
+    n = max(total, 1)
+    tex.update(t_raw=_table(n), t_tile=_table(n), t_ent=_table(n), cnt=_counter(ntx, nty))
+    _run("FILL", m, tex, {"n_g": m, "ntx": ntx})
+    _run("SORT", total, tex, {"n_ent": total})
+    return {k: tex[k] for k in LISTS}, total
