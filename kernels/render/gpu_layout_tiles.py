@@ -53,15 +53,17 @@ def starts(counts) -> np.ndarray:
 
 
 def cpu_lists(frame):
-    """The fallback when the GPU's lists do not fit its textures: the CPU's lists (device.
+    """The fallback when the GPU's lists do not fit its textures: the CPU's lists (_cpu_tiles.
     screen_tiles) as the same three tables; None when those pass MAX_TILE_ENTRIES too."""
-    from .device import screen_tiles
+    from ._cpu_tiles import screen_tiles
+    from .device import MAX_TILE_ENTRIES
     from .gpu_layout_gauss import tile_tables
     from .packing import SET_K
 
     g = frame.gauss
     i2w = [np.linalg.inv(m) for m in frame.objects.w2i]
-    t = screen_tiles(frame.cam, i2w, g.mu, g.inv, g.obj, g.w, frame.transfer.settings[SET_K])
+    t = screen_tiles(frame.cam, i2w, g.mu, g.inv, g.obj, g.w, frame.transfer.settings[SET_K],
+                     MAX_TILE_ENTRIES)
     if t is None:
         return None
     out = tile_tables(*t[:3])
