@@ -14,13 +14,13 @@ import math
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
-from ._cpu_chords import CB, CG, CR, TS
+from ._cpu_chords import CB, CG, CR, HQ, TS
 from ._cpu_math import _hot, _jit, erf_span, sample_color, whitened_chord
 from ._cpu_surface import brick_xyz, light_at, trilinear
 from ._cpu_walk import clip_interval, walk_object
 from .packing import LIT_SHADOWS, SET_K, SET_LIT_THRESHOLD, SET_SHADING
 
-SHADOW_POINTS = 40  # shadow grid points along an object's longest axis
+SHADOW_POINTS = 32  # shadow grid points along an object's longest axis
 SHADOW_STEP = 1.0   # reference mode: shadow ray sample spacing, voxels
 
 
@@ -61,7 +61,7 @@ def shine(c, sh):
     return r
 
 
-@njit(**_hot)
+@njit(**_hot, inline="always")
 def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, par):
     """Blinn-Phong on a lit volume sample of object ob (samp: sigma_t, rgb, value from
     sample_color; the rgb is replaced): gx, gy, gz the field's index-space gradient at index point
@@ -110,7 +110,7 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
     samp[1], samp[2], samp[3] = r, g, b
 
 
-@njit(**_hot)
+@njit(**_hot, inline="always")
 def lit_member(H, h, g, gauss, objs, xfer, scr):
     """A lit volume's chord in particles mode: its colour shaded once, at the chord's closest
     approach to the centre (shade_sample), on the mixture's gradient there: the Gaussian's own
@@ -121,7 +121,7 @@ def lit_member(H, h, g, gauss, objs, xfer, scr):
     x, y, z = ro[ob, 0] + ts * rd[ob, 0], ro[ob, 1] + ts * rd[ob, 1], ro[ob, 2] + ts * rd[ob, 2]
     ix, iy, iz = gauss.inv[g, 0], gauss.inv[g, 1], gauss.inv[g, 2]
     ux, uy, uz = (x - gauss.mu[g, 0]) * ix, (y - gauss.mu[g, 1]) * iy, (z - gauss.mu[g, 2]) * iz
-    e = -gauss.grad[g, 3] * math.exp(-0.5 * (ux * ux + uy * uy + uz * uz))
+    e = -gauss.grad[g, 3] * math.exp(-H[h, HQ])  # HQ: half the whitened distance at TS
     samp = scr.samp
     samp[1], samp[2], samp[3] = H[h, CR], H[h, CG], H[h, CB]
     shade_sample(samp, ob, gauss.grad[g, 0] + e * ux * ix, gauss.grad[g, 1] + e * uy * iy,
