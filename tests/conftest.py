@@ -68,6 +68,26 @@ def addon(bpy_module):
     addon_utils.disable(ADDON_MODULE, default_set=True)
 
 
+@pytest.fixture(scope="module")
+def gpu(addon):
+    """The GPU device; skips where no GPU context can be had (the probe is a child process: a
+    machine without EGL aborts it, not this one)."""
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import device, probe
+
+    ok, why = probe.probe()
+    if not ok:
+        pytest.skip(f"no GPU context here: {why}")
+    return device.GPUDevice()
+
+
+@pytest.fixture(scope="module")
+def cpu():
+    """A CPU device of the test module's own."""
+    from kernels.render import CPUDevice
+
+    return CPUDevice()
+
+
 @pytest.fixture
 def scene(addon, bpy_module):
     """A factory-fresh empty scene (the temporary config has no startup file), add-on kept enabled."""

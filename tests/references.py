@@ -1,5 +1,7 @@
 """Independent float64 references for the render tests: plain numpy, no numba, no traversal."""
 
+import math
+
 import numpy as np
 from scipy.special import erf
 
@@ -58,3 +60,12 @@ def quadrature_pixel(o, d, cs, sig, kap, col, t0, t1, k=3.0, n=40001):
     w = T * -np.expm1(-tau)
     cc = np.where(s_t[:, None] > 0, c_t / np.maximum(s_t, 1e-300)[:, None], 0)
     return np.concatenate([(w[:, None] * cc).sum(0), [1 - np.exp(-tau.sum())]])
+
+
+GPU_MIN_DB = 50.0  # the GPU device's images against the CPU device's (issue: PSNR >= 50 dB)
+
+
+def psnr(a, b):
+    """PSNR in dB of image a against b, peak 1 (inf when equal)."""
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)

@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 import pytest
+from references import GPU_MIN_DB, psnr
 from test_engine_helpers import add_camera, read_image, setup_render
 from vdb_fixtures import write_grid
 
@@ -21,27 +22,7 @@ from kernels.render.synthetic import grid_from_dense
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 N, W = 40, 64
 TF = TransferFunction.from_colormap("viridis", 0, 1.0, density=0.3)
-MIN_DB = 50.0
 
-
-def psnr(a, b):
-    mse = float(np.mean((np.asarray(a, np.float64) - b) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
-
-
-@pytest.fixture(scope="module")
-def gpu(addon):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import device, probe
-
-    ok, why = probe.probe()  # a child process: a machine without EGL aborts it, not this one
-    if not ok:
-        pytest.skip(f"no GPU context here: {why}")
-    return device.GPUDevice()
-
-
-@pytest.fixture(scope="module")
-def cpu():
-    return CPUDevice()
 
 
 def grids():
@@ -87,7 +68,7 @@ def test_reference_mode_matches_the_cpu_device(gpu, cpu, name):
     assert want["Combined"][..., 3].max() > 0.3  # something to compare
     db = psnr(got["Combined"], want["Combined"])
     print(f"{name}: GPU vs CPU {db:.1f} dB on {gpu.stats['gpu']}")
-    assert db >= MIN_DB, f"{name}: PSNR {db:.1f} dB < {MIN_DB} dB"
+    assert db >= GPU_MIN_DB, f"{name}: PSNR {db:.1f} dB < {GPU_MIN_DB} dB"
     hit = want["Depth"] < 1e9
     np.testing.assert_array_equal(got["Depth"] < 1e9, hit)
     np.testing.assert_allclose(got["Depth"][hit], want["Depth"][hit], rtol=1e-4, atol=1e-2)
@@ -128,7 +109,7 @@ def test_lit_volumes_match_the_cpu_device(gpu, cpu, shadows):
     assert np.abs(want - before).max() > 0.02
     db = psnr(got, want)
     print(f"lit{' + shadows' if shadows else ''}: GPU vs CPU {db:.1f} dB")
-    assert db >= MIN_DB, f"PSNR {db:.1f} dB"
+    assert db >= GPU_MIN_DB, f"PSNR {db:.1f} dB"
 
 
 def test_a_frame_the_gpu_cannot_draw_goes_to_the_cpu(gpu):
@@ -207,7 +188,7 @@ def test_f12_write_still_with_the_gpu_device(gpu, bpy_module, scene, tmp_path):
     assert images["CPU"][..., 3].max() > 0.3
     db = psnr(images["GPU"], images["CPU"])
     print(f"F12 GPU vs CPU {db:.1f} dB")
-    assert db >= MIN_DB, f"PSNR {db:.1f} dB"
+    assert db >= GPU_MIN_DB, f"PSNR {db:.1f} dB"
 
 
 def test_without_egl_the_cpu_renders_and_the_gpu_choice_falls_back(tmp_path):

@@ -3,37 +3,17 @@ paper on a fog volume, a level set (field: its surface; particles, paper: a shel
 overlapping objects and Gaussians of varied, anisotropic sizes (whose 1/sigma codes round)
 (PSNR >= 50 dB, Depth and Value passes); rays with more chords than the shader's hit slots, whose
 tiles the CPU device draws; the packed Gaussian words bit for bit through upload and texelFetch."""
-import math
 
 import numpy as np
 import pytest
+from references import GPU_MIN_DB, psnr
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render import Camera, RenderObject, RenderScene, TransferFunction
 from kernels.render.synthetic import gaussian_set
 
 W = 48
 TF = TransferFunction.from_colormap("viridis", 0, 1.0, density=0.4)
-MIN_DB = 50.0
 
-
-def psnr(a, b):
-    mse = float(np.mean((np.asarray(a, np.float64) - b) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
-
-
-@pytest.fixture(scope="module")
-def gpu(addon):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import device, probe
-
-    ok, why = probe.probe()
-    if not ok:
-        pytest.skip(f"no GPU context here: {why}")
-    return device.GPUDevice()
-
-
-@pytest.fixture(scope="module")
-def cpu():
-    return CPUDevice()
 
 
 def lattice(n, keep, values, sigma=0.8, grid_class="fog_volume", seed=0):
@@ -94,7 +74,7 @@ def test_gauss_modes_match_cpu(gpu, cpu, mode, name):
     assert gpu.stats["overflow_tiles"] == 0  # every pixel drawn by the shader
     db = psnr(got["Combined"], want["Combined"])
     assert want["Combined"][..., 3].max() > 0.25  # something to compare (paper is the faintest)
-    assert db >= MIN_DB, f"{mode}, {name}: PSNR {db:.1f} dB"
+    assert db >= GPU_MIN_DB, f"{mode}, {name}: PSNR {db:.1f} dB"
     print(f"{mode} {name}: {db:.1f} dB, overflow tiles {gpu.stats.get('overflow_tiles')}")
     # Depth where both reach half opacity; Value where the CPU has one
     d0, d1 = want["Depth"], got["Depth"]
@@ -102,7 +82,7 @@ def test_gauss_modes_match_cpu(gpu, cpu, mode, name):
     assert np.mean((d0 < 1e9) != (d1 < 1e9)) < 0.01
     np.testing.assert_allclose(d1[both], d0[both], rtol=1e-3, atol=1e-3)
     vdb = psnr(got["Value"], want["Value"])
-    assert vdb >= MIN_DB, f"{mode}, {name}: Value PSNR {vdb:.1f} dB"
+    assert vdb >= GPU_MIN_DB, f"{mode}, {name}: Value PSNR {vdb:.1f} dB"
 
 
 def test_overflowing_rays_drawn_on_cpu(gpu, cpu):
@@ -117,7 +97,7 @@ def test_overflowing_rays_drawn_on_cpu(gpu, cpu):
     got = gpu.render(sc, cam, TF)
     assert gpu.stats["overflow_tiles"] > 0
     db = psnr(got["Combined"], want["Combined"])
-    assert db >= MIN_DB, f"overflow: PSNR {db:.1f} dB"
+    assert db >= GPU_MIN_DB, f"overflow: PSNR {db:.1f} dB"
 
 
 def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):

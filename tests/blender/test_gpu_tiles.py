@@ -66,7 +66,7 @@ def test_gpu_lists_hold_the_cpu_lists(mods, name):
 def test_lists_past_the_gpu_limit_come_from_the_cpu(mods):
     """More entries than the GPU's lists may hold: the CPU's lists are uploaded instead and the
     image still matches the CPU device."""
-    from test_gpu_gauss import MIN_DB, psnr
+    from references import GPU_MIN_DB, psnr
 
     from kernels.render import CPUDevice
 
@@ -81,7 +81,7 @@ def test_lists_past_the_gpu_limit_come_from_the_cpu(mods):
     finally:
         tiles.MAX_ENTRIES = keep
     assert dev.stats["tile_lists"] == "CPU" and dev.stats["gpu_tile_entries"] > 10
-    assert psnr(got["Combined"], want["Combined"]) >= MIN_DB
+    assert psnr(got["Combined"], want["Combined"]) >= GPU_MIN_DB
     got = dev.render(RenderScene(scenes()["two objects"], mode="particles"), CAM, TF)
     assert dev.stats["tile_lists"] == "GPU"
 
@@ -89,7 +89,7 @@ def test_lists_past_the_gpu_limit_come_from_the_cpu(mods):
 def test_lists_past_both_limits_go_to_the_cpu_device(mods):
     """Lists too long for the GPU and for the CPU's lists too (a camera inside a dense volume):
     the CPU device draws the frame with its leaf walk, and says so."""
-    from test_gpu_gauss import MIN_DB, psnr
+    from references import GPU_MIN_DB, psnr
 
     from kernels.render import CPUDevice
 
@@ -105,4 +105,4 @@ def test_lists_past_both_limits_go_to_the_cpu_device(mods):
     finally:
         tiles.MAX_ENTRIES, kdevice.MAX_TILE_ENTRIES = keep
     assert dev.stats["fallback"] == device.NO_LISTS
-    assert psnr(got["Combined"], want["Combined"]) >= MIN_DB
+    assert psnr(got["Combined"], want["Combined"]) >= GPU_MIN_DB
