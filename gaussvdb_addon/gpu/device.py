@@ -167,11 +167,7 @@ class GPUDevice(kdevice.Device):
             self.stats = dict(self.cpu.stats, fallback=why)
             return out
         t_setup = self.stats["seconds_setup"]
-        r0, r1 = (0, frame.height) if rows is None else (int(rows[0]), int(rows[1]))
-        c0, c1 = (0, frame.width) if cols is None else (int(cols[0]), int(cols[1]))
-        if not (0 <= r0 <= r1 <= frame.height and 0 <= c0 <= c1 <= frame.width):
-            raise ValueError(f"rows {r0}..{r1} / columns {c0}..{c1} outside the "
-                             f"{frame.width}x{frame.height} image")
+        r0, r1, c0, c1 = kdevice.region(frame, rows, cols)
         nr, nc = r1 - r0, c1 - c0
         rgba = np.zeros((nr, nc, 4), np.float32)
         dv = np.zeros((nr, nc, 4), np.float32)

@@ -423,11 +423,7 @@ class CPUDevice(Device):
         t0 = time.perf_counter()
         frame = self.begin_frame(scene, camera, tf)
         t_setup = self.stats["seconds_setup"]
-        r0, r1 = (0, frame.height) if rows is None else (int(rows[0]), int(rows[1]))
-        c0, c1 = (0, frame.width) if cols is None else (int(cols[0]), int(cols[1]))
-        if not (0 <= r0 <= r1 <= frame.height and 0 <= c0 <= c1 <= frame.width):
-            raise ValueError(f"rows {r0}..{r1} / columns {c0}..{c1} outside the "
-                             f"{frame.width}x{frame.height} image")
+        r0, r1, c0, c1 = region(frame, rows, cols)
         nr, nc = r1 - r0, c1 - c0
         rgba = np.zeros((nr, nc, 4), np.float32)
         depth = np.full((nr, nc), 1e10, np.float32)
@@ -463,6 +459,16 @@ class CPUDevice(Device):
         if "Value" in scene.passes:
             out["Value"] = value
         return out
+
+
+def region(frame, rows, cols):
+    """(row0, row1, col0, col1) of a render() call's rows and cols (None: all) in the frame."""
+    r0, r1 = (0, frame.height) if rows is None else (int(rows[0]), int(rows[1]))
+    c0, c1 = (0, frame.width) if cols is None else (int(cols[0]), int(cols[1]))
+    if not (0 <= r0 <= r1 <= frame.height and 0 <= c0 <= c1 <= frame.width):
+        raise ValueError(f"rows {r0}..{r1} / columns {c0}..{c1} outside the "
+                         f"{frame.width}x{frame.height} image")
+    return r0, r1, c0, c1
 
 
 class _Frame:
