@@ -14,6 +14,7 @@ import numpy as np
 
 from ..jit import njit, parallel_njit, prange
 from ._cpu_chords import NF, OVERFLOW
+from ._cpu_fog import reference_fog
 from ._cpu_gauss import NB, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
@@ -98,6 +99,12 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
 def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     """paper / reference: piece by piece over the covering leaves."""
     one = accel.walk_obj.shape[0] == 1  # one object's leaves: the intervals are the pieces
+    tf = objs.tf[0]
+    if (one and mode == Mode.REFERENCE and objs.kind[0] == 0 and objs.ctf[0] < 0 and objs.lit[0] == 0
+            and xfer.par[tf, 2] < 0.5):  # one fog volume, Emission, linear transfer function
+        reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
+                      accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf])
+        return
     iv_ta, iv_tb, srt, act_iv = scr.iv_ta, scr.iv_tb, scr.srt, scr.act_iv
     cov_obj, cov_cell = scr.cov_obj, scr.cov_cell
     npieces = n if one else merged_pieces(n, iv_ta, iv_tb, srt, scr.bnd)
@@ -188,6 +195,7 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
     maxd = settings[SET_PAPER_DEPTH]
     t_start = accel.t_start
     tiled = mode <= Mode.FIELD and t_start.shape[0] > 1
+    culled = mode == Mode.REFERENCE and t_start.shape[0] > 1  # leaves per tile (leaf_tiles)
     ntx = (W + TILE - 1) // TILE
     w0 = min(c1, (c0 // TILE + 1) * TILE) - c0  # the first tile column's part of [c0, c1)
     st, ro, rd, rclip, sprev = scr.st, scr.ro, scr.rd, scr.rclip, scr.sprev
@@ -220,6 +228,7 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             tn, tf = clip0, clip1
         tl = (j // TILE) * ntx + i // TILE
         n = t_start[tl + 1] - t_start[tl] if tiled else 0
+        walk = not tiled and not (culled and t_start[tl + 1] == t_start[tl])
         for ob in range(n_obj):
             M = w2i[ob]
             ox = M[0, 0] * owx + M[0, 1] * owy + M[0, 2] * owz + M[0, 3]
@@ -231,13 +240,13 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             ro[ob, 0], ro[ob, 1], ro[ob, 2] = ox, oy, oz
             rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
             rclip[ob, 0], rclip[ob, 1] = clip_interval(objs.clip[ob], owx, owy, owz, dwx, dwy, dwz)
-            if not tiled:
+            if walk:
                 n = walk_object(ox, oy, oz, dx, dy, dz, max(tn, rclip[ob, 0]),
                                 min(tf, rclip[ob, 1]), accel.node_min[ob], accel.node_dims[ob],
                                 accel.node_off[ob], accel.node_table, accel.node_cells,
                                 accel.cell_skip, ob, scr.iv_ta, scr.iv_tb, scr.iv_obj, scr.iv_cell,
                                 n, accel.max_walk, 1)
-        for w in range(n_obj, 0 if tiled else accel.walk_obj.shape[0]):  # the coarse levels' grids
+        for w in range(n_obj, accel.walk_obj.shape[0] if walk else 0):  # the coarse levels' grids
             ob = accel.walk_obj[w]
             n = walk_object(ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
                             max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]), accel.node_min[w],
