@@ -243,14 +243,15 @@ def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k, limit):
     return start, items, masks, lb
 
 
-def leaf_tiles(cam, i2w, cell_xyz, cell_obj, cell_skip):
+def leaf_tiles(cam, w2i, cell_xyz, cell_obj, cell_skip):
     """Reference mode's empty-space test per screen tile: tile t's leaf count is start[t + 1] -
     start[t] (the leaves, skipped ones left out, whose bounding sphere's footprint meets it); a
-    pixel of a tile with none walks nothing. With NO_TILES' layout (ids and masks unused)."""
+    pixel of a tile with none walks nothing. w2i: the objects' world -> index matrices. With
+    NO_TILES' layout (ids and masks unused)."""
     n = cell_xyz.shape[0]
     centre = cell_xyz * 8.0 + 3.5  # a leaf's voxels (index space) span 8 c - 0.5 .. 8 c + 7.5
     inv = np.full((n, 3), 1.0 / (4.0 * math.sqrt(3.0)))
-    cmat, onorm = tile_camera(cam, i2w)
+    cmat, onorm = tile_camera(cam, [np.linalg.inv(m) for m in w2i])
     box = np.empty((n, 4), np.int32)
     gauss_footprints(cam, cmat, onorm, centre, inv, cell_obj.astype(np.int32),
                      (cell_skip == 0).astype(np.float64), 1.0, box, np.empty(n))

@@ -370,8 +370,7 @@ class CPUDevice(Device):
                 acc = self._halo_lists()  # the leaf walk, surface normals, shadow rays
         cell_skip = self._cell_skip(mode, acc, gauss.w, tfs, obj_tf, obj_kind)
         if mode == Mode.REFERENCE and acc.n_cells:  # which screen tiles have leaves to walk
-            tiles = self._kt.leaf_tiles(camera.packed(), [np.asarray(o.matrix_world, np.float64)
-                                        for o in scene.objects], acc.cell_xyz, acc.cell_obj, cell_skip)
+            tiles = self._kt.leaf_tiles(camera.packed(), objects.w2i, acc.cell_xyz, acc.cell_obj, cell_skip)
         accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=mode == Mode.REFERENCE)
         if (objects.lit == packing.LIT_SHADOWS).any():
             objects = self._shadow_grids(mode, scene, tfs, objects, gauss, accel, transfer)
