@@ -17,7 +17,8 @@ int b_g[KB];
 /* The next of the tile's entries from q (q is left past it) in this pixel's mask whose chord enters
  * in the span counted (see above) at or after pcur, and before the buffer's last when it holds
  * nb == KB: its Gaussian (-1: none left) and chord [e0, e1]. Its own loop, as gauss.glsl's
- * next_hit (llvmpipe's loop budget: loops_cut). */
+ * next_hit (llvmpipe's loop budget: loops_cut); with the GPU's lists (their entry bounds in
+ * t_lb) a full buffer ends the scan at the first entry bound past its last. */
 int next_entry(inout int q, int q1, int bit, float k2, Ray r, float pcur, int nb, out float e0, out float e1)
 {
   int found = -1;
@@ -27,6 +28,12 @@ int next_entry(inout int q, int q1, int bit, float k2, Ray r, float pcur, int nb
     if (g < 0) {
       continue;
     }
+#ifdef GPU_TILES
+    if (nb == KB && texel(t_lb, g).x > b_t0[KB - 1]) {  /* lists by entry bound: none later enters sooner */
+      q = q1;
+      continue;
+    }
+#endif
     Gauss G = gauss_at(g);
     int ob = n_obj == 1 ? 0 : G.ob;
     vec3 w = (g_ro[ob] - G.mu) * G.iv, v = g_rd[ob] * G.iv;
