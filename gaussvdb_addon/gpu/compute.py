@@ -31,7 +31,8 @@ def source(glsl_file):
 
 def group(spec):
     """The work group's side for a mode: GROUP, or 1 for modes marked ONE_PER_GROUP on llvmpipe
-    (its 8x8 groups ran the particles sweep's divergent loops wrongly: whole tiles lost chords)."""
+    (the pixels it runs together share one loop budget, glsl/common.glsl's loops_cut, and the
+    Gaussian modes' divergent loops spend it at the pace of the slowest pixel)."""
     import gpu
 
     if "ONE_PER_GROUP" in spec.defines and "llvmpipe" in gpu.platform.renderer_get():

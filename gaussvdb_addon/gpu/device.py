@@ -31,7 +31,7 @@ ModeSpec = namedtuple("ModeSpec", "glsl defines lit")
 MODES = {"reference": ModeSpec("reference.glsl", ("WALK",), True),
          "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",), False),
          "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP"), False),
-         "paper": ModeSpec(("gauss.glsl", "paper.glsl"), (), False)}
+         "paper": ModeSpec(("gauss.glsl", "paper.glsl"), ("ONE_PER_GROUP",), False)}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 NO_LISTS = "no screen-tile lists"  # the fallback's word when neither device's lists fit
 

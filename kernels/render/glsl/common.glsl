@@ -16,6 +16,7 @@
 #define SET_SHADING 9
 #define OBJ_TEXELS 12
 #define SET_LIT_THRESHOLD 13
+#define OVERFLOW_DEPTH (-2e10)  /* gpu_layout_gauss.OVERFLOW_DEPTH: the device draws the pixel's tile on the CPU */
 
 /* -- table fetches ------------------------------------------------------------------------- */
 vec4 texel(sampler2D t, int e)
@@ -530,6 +531,19 @@ void shade_hit(inout State st, Ray r)
   }
   st.rad += st.tr * c;
   st.tr = 0.0;
+}
+
+/* Whether the driver cut this invocation's loops short. llvmpipe (Mesa's gallivm) ends every loop
+ * after one pass once an invocation has made 65535 loop passes in all (LP_MAX_TGSI_LOOP_ITERATIONS),
+ * silently; a loop that a branch skips still makes one pass there (its SIMD code runs it masked).
+ * A loop of two passes, run last, then makes one. */
+bool loops_cut()
+{
+  int n = 0;
+  for (int i = 0; i < 2 + min(nrows, 0); i++) {  /* (nrows >= 1: two passes the compiler cannot unroll) */
+    n++;
+  }
+  return n < 2;
 }
 
 /* the pixel's passes: rgba premultiplied over the background, depth, value (render_pixels) */

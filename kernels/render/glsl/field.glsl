@@ -208,25 +208,18 @@ bool trace_tiles(float tn, float tf, inout State st)
     sprev_i[ob] = -1000000000;
     sprev_v[ob] = 0.0;
   }
-  int nh = 0, swept = 0;
-  for (int q = tile_first(tb.x); q < t1; q++) {
-    int g = tile_entry(q, tb.y);
-    if (g < 0) {
-      continue;
-    }
-    Gauss G = gauss_at(g);
+  int nh = 0, swept = 0, q = tile_first(tb.x);
+  Gauss G;
+  vec4 c;
+  float aa, qq, ra;
+  for (int g = next_hit(q, t1, tb.y, k2, tn, tf, G, c, aa, qq, ra); g >= 0;
+       g = next_hit(q, t1, tb.y, k2, tn, tf, G, c, aa, qq, ra)) {
     float lbg = entry_bound(G, g);
     if (nh >= swept + BATCH && q0 < nq && q_t[q0] < lbg) {
       swept = nh;
       if (sweep_field(st, lbg)) {
         return !f_over;
       }
-    }
-    int ob = n_obj == 1 ? 0 : G.ob;
-    float aa, qq, ra;
-    vec4 c = chord(G, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
-    if (!(c.y > c.x)) {
-      continue;
     }
     if (nfree == 0) {
       if (sweep_field(st, lbg)) {

@@ -4,7 +4,6 @@
 #define TILE 8
 #define SET_TAU_MAX 1
 #define SET_K 2
-#define OVERFLOW_DEPTH (-2e10)  /* gpu_layout_gauss.OVERFLOW_DEPTH */
 #define SQRT_HALF 0.70710678
 #define SQRT_HALF_PI 1.25331414
 #define TWO_OVER_SQRT_PI 1.12837917
@@ -91,6 +90,28 @@ vec4 chord(Gauss G, vec3 o, vec3 d, float k2, float tn, float tf, out float aa, 
   float s = qq < k2 ? max(ts - hw, tn) : INF;
   float pk = G.w * exp(-0.5 * min(qq, k2));
   return vec4(s, min(ts + hw, tf), ts, pk);
+}
+
+/* The next of the tile's entries from q (q is left past it) in this pixel's mask whose chord meets
+ * [tn, tf] and its object's clip interval: its Gaussian (-1: none left), the chord as chord()
+ * gives it. The misses are skipped in this loop of its own: in the callers' loop each pass would
+ * also run their sweeps' loops once on llvmpipe (see loops_cut), which dense tiles (thousands of
+ * entries) could not afford. */
+int next_hit(inout int q, int q1, int bit, float k2, float tn, float tf, out Gauss G, out vec4 c,
+             out float aa, out float qq, out float ra)
+{
+  int found = -1;
+  while (found < 0 && q < q1) {
+    int g = tile_entry(q, bit);
+    q++;
+    if (g >= 0) {
+      G = gauss_at(g);
+      int ob = n_obj == 1 ? 0 : G.ob;
+      c = chord(G, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
+      found = c.y > c.x ? g : -1;
+    }
+  }
+  return found;
 }
 
 /* -- the hits of one ray (particles, field): PCAP slots, a free list and the entry queue ----- */

@@ -1,5 +1,5 @@
 /* One invocation per pixel of the band (row0, col0, nrows x ncols): the camera ray, each
- * object's index ray, the mode's trace_mode, the passes. */
+ * object's index ray, the mode's trace_mode, the passes (OVERFLOW_DEPTH where loops_cut). */
 void main()
 {
   ivec2 p = ivec2(gl_GlobalInvocationID.xy);
@@ -12,4 +12,7 @@ void main()
   State st = state_start();
   trace_mode(r, st);
   write_output(p, r, st);
+  if (loops_cut()) {  /* the trace may be incomplete: the device draws this tile on the CPU */
+    imageStore(out_dv, p, vec4(OVERFLOW_DEPTH, 0.0, 0.0, 0.0));
+  }
 }

@@ -14,6 +14,50 @@
 float b_t0[KB], b_t1[KB];
 int b_g[KB];
 
+/* The next of the tile's entries from q (q is left past it) in this pixel's mask whose chord enters
+ * in the span counted (see above) at or after pcur, and before the buffer's last when it holds
+ * nb == KB: its Gaussian (-1: none left) and chord [e0, e1]. Its own loop, as gauss.glsl's
+ * next_hit (llvmpipe's loop budget: loops_cut); with the GPU's lists (their entry bounds in
+ * t_lb) a full buffer ends the scan at the first entry bound past its last. */
+int next_entry(inout int q, int q1, int bit, float k2, Ray r, float pcur, int nb, out float e0, out float e1)
+{
+  int found = -1;
+  while (found < 0 && q < q1) {
+    int g = tile_entry(q, bit);
+    q++;
+    if (g < 0) {
+      continue;
+    }
+#ifdef GPU_TILES
+    if (nb == KB && texel(t_lb, g).x > b_t0[KB - 1]) {  /* lists by entry bound: none later enters sooner */
+      q = q1;
+      continue;
+    }
+#endif
+    Gauss G = gauss_at(g);
+    int ob = n_obj == 1 ? 0 : G.ob;
+    vec3 w = (g_ro[ob] - G.mu) * G.iv, v = g_rd[ob] * G.iv;
+    float a = dot(v, v);
+    float ts = -dot(w, v) / a;
+    vec3 p = w + ts * v;
+    float qq = dot(p, p);
+    if (qq >= k2) {
+      continue;
+    }
+    float hw = sqrt((k2 - qq) / a);
+    e0 = max(ts - hw, g_rclip[ob].x);
+    e1 = min(ts + hw, g_rclip[ob].y);
+    if (!(e1 > e0) || e0 < pcur || e0 < max(r.tn, g_rclip[ob].x) || e0 >= min(r.tf, g_rclip[ob].y)) {
+      continue;
+    }
+    if (nb == KB && !(e0 < b_t0[KB - 1] || (e0 == b_t0[KB - 1] && g < b_g[KB - 1]))) {
+      continue;
+    }
+    found = g;
+  }
+  return found;
+}
+
 void trace_mode(Ray r, inout State st)
 {
   float k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
@@ -24,30 +68,10 @@ void trace_mode(Ray r, inout State st)
   float pcur = -INF, depth_n = 0.0;
   bool more = true;
   while (more && depth_n < maxd && st.tr >= st.tmin) {
-    int nb = 0;
-    for (int q = q0; q < q1; q++) {
-      int g = tile_entry(q, tb.y);
-      if (g < 0) {
-        continue;
-      }
-      Gauss G = gauss_at(g);
-      int ob = n_obj == 1 ? 0 : G.ob;
-      vec3 w = (g_ro[ob] - G.mu) * G.iv, v = g_rd[ob] * G.iv;
-      float a = dot(v, v);
-      float ts = -dot(w, v) / a;
-      vec3 p = w + ts * v;
-      float qq = dot(p, p);
-      if (qq >= k2) {
-        continue;
-      }
-      float hw = sqrt((k2 - qq) / a);
-      float e0 = max(ts - hw, g_rclip[ob].x), e1 = min(ts + hw, g_rclip[ob].y);
-      if (!(e1 > e0) || e0 < pcur || e0 < max(r.tn, g_rclip[ob].x) || e0 >= min(r.tf, g_rclip[ob].y)) {
-        continue;
-      }
-      if (nb == KB && !(e0 < b_t0[KB - 1] || (e0 == b_t0[KB - 1] && g < b_g[KB - 1]))) {
-        continue;
-      }
+    int nb = 0, q = q0;
+    float e0, e1;
+    for (int g = next_entry(q, q1, tb.y, k2, r, pcur, nb, e0, e1); g >= 0;
+         g = next_entry(q, q1, tb.y, k2, r, pcur, nb, e0, e1)) {
       int j = nb < KB ? nb : KB - 1; /* insert, dropping the last when full */
       while (j > 0 && (e0 < b_t0[j - 1] || (e0 == b_t0[j - 1] && g < b_g[j - 1]))) {
         b_t0[j] = b_t0[j - 1];

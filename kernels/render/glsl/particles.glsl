@@ -145,20 +145,17 @@ bool trace_tiles(float tn, float tf, inout State st) {
   nm = 0;
   s_a = 0.0; s_last = 0.0; s_rho = 0.0; s_cend = -INF;
   reset_bounds();
-  int nh = 0, swept = 0;
-  for (int q = tile_first(tl); q < t1; q++) {
-    int g = tile_entry(q, bit);
-    if (g < 0) continue;
-    Gauss G = gauss_at(g);
-    float lbg = entry_bound(G, g);
+  int nh = 0, swept = 0, q = tile_first(tl);
+  Gauss G;
+  vec4 c;
+  float aa, qq, ra;
+  for (int g = next_hit(q, t1, bit, k2, tn, tf, G, c, aa, qq, ra); g >= 0;
+       g = next_hit(q, t1, bit, k2, tn, tf, G, c, aa, qq, ra)) {
+    float lbg = entry_bound(G, g);  /* (a horizon at any entry: the entries before it have lower bounds) */
     if (nh >= swept + BATCH && ((q0 < nq && q_t[q0] < lbg) || (nm > 0 && s_cend <= lbg))) {
       swept = nh;
       if (sweep_particles(st, lbg, tau_max)) return true;
     }
-    int ob = n_obj == 1 ? 0 : G.ob;
-    float aa, qq, ra;
-    vec4 c = chord(G, g_ro[ob], g_rd[ob], k2, max(tn, g_rclip[ob].x), min(tf, g_rclip[ob].y), aa, qq, ra);
-    if (!(c.y > c.x)) continue;
     if (nfree == 0) {
       if (sweep_particles(st, lbg, tau_max)) return true;
       if (nfree == 0) return false;
