@@ -12,29 +12,22 @@ import math
 from ..jit import njit
 from ._cpu_math import BG_DEPTH, DEPTH, RAD, SEGS, TMIN, TR, VSUM, VWT, _hot
 
-# 1 / n for the series in absorbed (a product rounds where a quotient by n would not be folded)
-_R2, _R3, _R4, _R5, _R6, _R7 = 1 / 2, 1 / 3, 1 / 4, 1 / 5, 1 / 6, 1 / 7
-_R8, _R9, _R10, _R11, _R12 = 1 / 8, 1 / 9, 1 / 10, 1 / 11, 1 / 12
+# the series of 1 - exp(-x) = sum c_k x^(k + 1), c_k = (-1)^k / (k + 1)!, to 12 terms
+C0, C1, C2, C3, C4, C5, C6, C7, C8, C9, C10, C11 = ((-1.0) ** k / math.factorial(k + 1) for k in range(12))
 
 
 @njit(**_hot, inline="always")
 def absorbed(tau):
-    """1 - exp(-tau) for tau > 0 to double precision: below 1/16 by its Taylor series (11 terms,
-    the remainder under 1e-17 relative), inline, since a libm call costs as much as the rest of a
-    sample; above, by expm1."""
+    """1 - exp(-tau) for tau > 0 to double precision: below 1/16 by its Taylor series (the
+    remainder under 1e-16 relative) in Estrin's order (fewer dependent steps than Horner's),
+    inline, since a libm call cost as much as the rest of a sample; above, by expm1."""
     if tau < 0.0625:
-        p = 1.0 - tau * _R12
-        p = 1.0 - tau * _R11 * p
-        p = 1.0 - tau * _R10 * p
-        p = 1.0 - tau * _R9 * p
-        p = 1.0 - tau * _R8 * p
-        p = 1.0 - tau * _R7 * p
-        p = 1.0 - tau * _R6 * p
-        p = 1.0 - tau * _R5 * p
-        p = 1.0 - tau * _R4 * p
-        p = 1.0 - tau * _R3 * p
-        p = 1.0 - tau * _R2 * p
-        return tau * p
+        x2 = tau * tau
+        x4 = x2 * x2
+        q0 = (C0 + C1 * tau) + (C2 + C3 * tau) * x2
+        q1 = (C4 + C5 * tau) + (C6 + C7 * tau) * x2
+        q2 = (C8 + C9 * tau) + (C10 + C11 * tau) * x2
+        return tau * ((q0 + q1 * x4) + q2 * (x4 * x4))
     return -math.expm1(-tau)
 
 
