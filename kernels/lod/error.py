@@ -100,14 +100,16 @@ def _fill_pairs(cent, sig, k, keys, corg, start, out):
 
 
 @njit(cache=True, inline="always")
-def axis_terms(c, g, corg, cent, sig, power, q, e):
+def axis_terms(c, g, corg, cent, sig, power, cut, q, e):
     """Along each axis a, at the 8 voxel centres l of cell c: q[a, l] = d^2 and
-    e[a, l] = exp(-power d^2 / 2), d the distance to Gaussian g's centre in its sigmas."""
+    e[a, l] = exp(-power d^2 / 2), d the distance to Gaussian g's centre in its sigmas. Beyond
+    the truncation (q > cut) e is 0 and never read (every caller skips those voxels): the
+    exponentials are most of the evaluation's cost, about half of them out there."""
     for a in range(3):
         for li in range(8):
             d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
             q[a, li] = d * d
-            e[a, li] = np.exp(-0.5 * power * d * d)
+            e[a, li] = np.exp(-0.5 * power * d * d) if d * d <= cut else 0.0
 
 
 @njit(cache=True, inline="always")
@@ -116,7 +118,7 @@ def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
     cell, truncated at k sigma (k2 = k^2), with separable exponentials per axis."""
     for p in range(cstart[c], cstart[c + 1]):
         g = pg[p]
-        axis_terms(c, g, corg, cent, sig, 1.0, q, e)
+        axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
         wg = w[g]
         for x in range(8):
             if q[0, x] > k2:
@@ -160,7 +162,7 @@ def pair_sums(c, g, corg, cent, sig, k2, power, q, e, act, res, wt):
     """For Gaussian g listed in cell c: (sum psi res, sum psi wt) over the active voxels (act) of
     the cell, psi = g^power (the Gaussian narrowed to sigma / sqrt(power), cut at k2 / power)."""
     k2p = k2 / power
-    axis_terms(c, g, corg, cent, sig, power, q, e)
+    axis_terms(c, g, corg, cent, sig, power, k2p, q, e)
     num = 0.0
     den = 0.0
     for x in range(8):
@@ -213,20 +215,21 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
 
 
 def _cells(grid, gset):
-    """Evaluation cells: leaves, then active tiles as 8^3 pseudo-leaves; reference per voxel."""
+    """Evaluation cells: leaves, then active tiles as 8^3 pseudo-leaves; origins, masks, weights,
+    and where each cell's reference per voxel comes from (made per chunk by _cref: a copy of
+    every reference at once would be as large as the voxel values)."""
     is_ls = grid.grid_class == "level_set"
     band = bool(gset.params.get("level_set_band", False)) if gset.params else False
     if is_ls and not gset.params:  # decoded set: no params; assume the default (band on)
         band = True
     corg = [np.asarray(grid.leaf_origins, np.int64).reshape(-1, 3)]
     cmask = [np.asarray(grid.leaf_masks, np.uint64).reshape(-1, 8)]
-    if is_ls:
-        kept, _ = effective_masks(grid, band)
-        bits = ((np.asarray(kept)[:, :, None] >> np.arange(64, dtype=np.uint64)) & np.uint64(1))
-        cref = [bits.reshape(len(kept), 512).astype(np.float32)]
+    if is_ls:  # the reference occupancy: the kept bits
+        leaf = np.asarray(effective_masks(grid, band)[0], np.uint64).reshape(-1, 8)
     else:
-        cref = [np.asarray(grid.leaf_values, np.float32).reshape(-1, 512)]
+        leaf = np.asarray(grid.leaf_values, np.float32).reshape(-1, 512)
     cw = [np.ones(len(corg[0]))]
+    tref = np.zeros(0, np.float32)
     act = np.nonzero(np.asarray(grid.tile_active, bool))[0]
     if len(act):
         to = np.asarray(grid.tile_origins, np.int64).reshape(-1, 3)[act]
@@ -237,13 +240,27 @@ def _cells(grid, gset):
         cmask.append(np.full((len(act), 8), np.iinfo(np.uint64).max, np.uint64))
         if is_ls:
             thr = band_threshold(grid) if band else np.inf
-            ref = (np.abs(tv) <= thr).astype(np.float32)
+            tref = (np.abs(tv) <= thr).astype(np.float32)
         else:
-            ref = tv
-        cref.append(np.repeat(ref[:, None], 512, 1))
+            tref = tv
         cw.append((ts / 8.0) ** 3)
-    return (np.concatenate(corg), np.concatenate(cmask), np.concatenate(cref),
-            np.concatenate(cw), is_ls)
+    return (np.concatenate(corg), np.concatenate(cmask), np.concatenate(cw), is_ls,
+            dict(leaf=leaf, tile=tref))
+
+
+def _cref(ref, rows, is_ls):
+    """float32 (len(rows), 512): the reference per voxel of the cells ``rows`` (_cells' order)."""
+    out = np.empty((len(rows), 512), np.float32)
+    nleaf = len(ref["leaf"])
+    leaf = rows < nleaf
+    li = rows[leaf]
+    if is_ls:
+        bits = (ref["leaf"][li][:, :, None] >> np.arange(64, dtype=np.uint64)) & np.uint64(1)
+        out[leaf] = bits.reshape(len(li), 512)
+    else:
+        out[leaf] = ref["leaf"][li]
+    out[~leaf] = ref["tile"][rows[~leaf] - nleaf][:, None]
+    return out
 
 
 def cell_keys(cells):
@@ -251,16 +268,23 @@ def cell_keys(cells):
     return ((cells[:, 0] + _OFF) << 42) | ((cells[:, 1] + _OFF) << 21) | (cells[:, 2] + _OFF)
 
 
-def cell_table(grid, gset):
-    """The evaluation cells, sorted by key: origins, masks, reference per voxel, weights (big tiles
-    count (edge/8)^3), keys, and whether the grid is a level set. Depends on the grid and on the
-    set's level-set band option only, so an adaptive build computes it once."""
+def cell_index(grid, gset):
+    """The evaluation cells, sorted by key: origins, masks, weights (big tiles count (edge/8)^3),
+    keys, whether the grid is a level set, and rows / ref (where the reference of each comes from,
+    for _cref)."""
     grid, _ = finite_grid(grid)  # the voxels build_lod kept: NaN/Inf ones are inactive there too
-    corg, cmask, cref, cw, is_ls = _cells(grid, gset)
+    corg, cmask, cw, is_ls, ref = _cells(grid, gset)
     keys = cell_keys(corg >> 3)
     srt = np.argsort(keys, kind="stable")
-    return dict(corg=corg[srt], cmask=cmask[srt], cref=cref[srt], cw=cw[srt], keys=keys[srt],
-                is_ls=is_ls)
+    return dict(corg=corg[srt], cmask=cmask[srt], cw=cw[srt], keys=keys[srt], is_ls=is_ls,
+                rows=srt, ref=ref)
+
+
+def cell_table(grid, gset):
+    """cell_index plus cref, the reference per voxel of every cell. Depends on the grid and on the
+    set's level-set band option only, so an adaptive build computes it once."""
+    t = cell_index(grid, gset)
+    return dict(t, cref=_cref(t["ref"], t["rows"], t["is_ls"]))
 
 
 def pair_lists(table, cent, sig, k=DEFAULT_K):
@@ -295,22 +319,113 @@ def nrmse_denominator(is_ls, vmin, vmax):
     return (vmax - vmin) or max(abs(vmin), abs(vmax)) or 1.0
 
 
-def _evaluate(grid, gset, k):
-    st = setup(grid, gset, k)
-    w = gset.values.astype(np.float64) * gset.amplitudes.astype(np.float64)
-    return st, _eval_cells(st["corg"], st["cmask"], st["cref"], st["cstart"], st["pg"], st["cent"],
-                           st["sig"], w, st["k"])
+@parallel_njit(cache=True)
+def _group_reach(origins, gstart, offsets, sig, k):
+    """Per group, the lowest and highest cell x (index >> 3) its Gaussians' k-sigma boxes reach,
+    computed as _cells_of does."""
+    ng = gstart.shape[0] - 1
+    lo = np.full(ng, np.iinfo(np.int64).max, np.int64)
+    hi = np.full(ng, np.iinfo(np.int64).min, np.int64)
+    for gi in prange(ng):
+        for j in range(gstart[gi], gstart[gi + 1]):
+            c = np.float64(origins[gi, 0]) + np.float64(offsets[j, 0])
+            r = k * np.float64(sig[j, 0])
+            lo[gi] = min(lo[gi], np.int64(np.ceil(c - r)) >> 3)
+            hi[gi] = max(hi[gi], np.int64(np.floor(c + r)) >> 3)
+    return lo, hi
 
 
-def cell_errors(grid, gset, k=DEFAULT_K):
+@njit(cache=True)
+def _by_cell(start, pc, ncell):
+    """Gaussian g's cells pc[start[g]:start[g + 1]] -> (cstart, pg): the pairs grouped by cell,
+    each cell's Gaussians in increasing order (a counting sort: stable, as argsort was)."""
+    cstart = np.zeros(ncell + 1, np.int64)
+    for p in range(pc.shape[0]):
+        cstart[pc[p] + 1] += 1
+    for c in range(ncell):
+        cstart[c + 1] += cstart[c]
+    pos = cstart[:-1].copy()
+    pg = np.empty(pc.shape[0], np.int32)
+    for g in range(start.shape[0] - 1):
+        for p in range(start[g], start[g + 1]):
+            c = pc[p]
+            pg[pos[c]] = g
+            pos[c] += 1
+    return cstart, pg
+
+
+class _Reach:
+    """Which Gaussians a run of cells (contiguous in key order, so in cell x) can meet. Leaf
+    groups are sorted by origin: the running maximum of their reach's high end and the running
+    minimum from the back of its low end are monotonic, so two binary searches bound the leaf
+    Gaussians; tile groups (few, any size) are tested one by one."""
+
+    def __init__(self, gset, k):
+        self.gs, gstart, nl = gset, gset.group_start, gset.n_leaf_groups
+        lo, hi = _group_reach(np.asarray(gset.group_origins), gstart, gset.offsets, gset.sigmas,
+                              float(k))
+        self.pmax = np.maximum.accumulate(hi[:nl])
+        self.smin = np.minimum.accumulate(lo[:nl][::-1])[::-1]
+        self.tlo, self.thi, self.nl = lo[nl:], hi[nl:], nl
+
+    def geometry(self, xa, xb):
+        """(centres, sigmas, weights) float64 of the Gaussians whose boxes reach cell x in
+        [xa, xb], in increasing index order (so each cell sums them in the set's order)."""
+        g = self.gs
+        g0 = int(np.searchsorted(self.pmax, xa, "left"))
+        g1 = max(g0, int(np.searchsorted(self.smin, xb, "right")))
+        tsel = np.flatnonzero((self.thi >= xa) & (self.tlo <= xb)) + self.nl
+        grp = np.concatenate([np.arange(g0, g1, dtype=np.int64), tsel])
+        cnt = g.group_start[grp + 1] - g.group_start[grp]
+        first = np.repeat(g.group_start[grp] - (np.cumsum(cnt) - cnt), cnt)
+        idx = first + np.arange(len(first), dtype=np.int64)
+        cent = g.group_origins[np.repeat(grp, cnt)].astype(np.float64) + g.offsets[idx]
+        w = g.values[idx].astype(np.float64) * g.amplitudes[idx].astype(np.float64)
+        return cent, g.sigmas[idx].astype(np.float64), w
+
+
+DEFAULT_CHUNK = 8192  # cells per evaluation chunk: at High ~1,400 pairs each, ~150 MB of lists
+
+
+def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK):
+    """The per-cell figures of _eval_cells over every cell (sorted by key), a chunk of cells at a
+    time: each chunk lists only its own pairs, with its Gaussians in the set's order, so every
+    cell sums the same terms in the same order as one list over all cells would."""
+    t = cell_index(grid, gset)
+    nc, kk = len(t["keys"]), float(k)
+    out = [np.zeros(nc) for _ in range(5)]
+    reach = _Reach(gset, kk)
+    pairs = 0
+    for a in range(0, nc, max(1, int(chunk))):
+        b = min(nc, a + max(1, int(chunk)))
+        keys, corg = t["keys"][a:b], t["corg"][a:b]
+        cent, sig, w = reach.geometry(corg[0, 0] >> 3, corg[-1, 0] >> 3)
+        cnt = _count_pairs(cent, sig, kk, keys, corg)
+        start = np.zeros(len(cnt) + 1, np.int64)
+        np.cumsum(cnt, out=start[1:])
+        pc = np.empty(int(start[-1]), np.int32)
+        _fill_pairs(cent, sig, kk, keys, corg, start, pc)
+        cstart, pg = _by_cell(start, pc, b - a)
+        del pc
+        pairs += len(pg)
+        cref = _cref(t["ref"], t["rows"][a:b], t["is_ls"])
+        res = _eval_cells(corg, t["cmask"][a:b], cref, cstart, pg, cent, sig, w, kk)
+        for o, r in zip(out, res):
+            o[a:b] = r
+    return dict(t, pairs=pairs, k=kk), out
+
+
+def cell_errors(grid, gset, k=DEFAULT_K, chunk=DEFAULT_CHUNK):
     """Per evaluation cell, sorted by key: (keys, summed squared residual, active voxels)."""
-    st, (sse, _, npts, _, _) = _evaluate(grid, gset, k)
+    st, (sse, _, npts, _, _) = _evaluate(grid, gset, k, chunk)
     return st["keys"], sse, npts
 
 
-def field_error(grid, gset, k=DEFAULT_K) -> dict:
+def field_error(grid, gset, k=DEFAULT_K, chunk=DEFAULT_CHUNK) -> dict:
+    """The error figures; ``chunk``: cells evaluated at a time (bounds the memory; any value
+    gives the same figures)."""
     t0 = time.perf_counter()
-    st, (sse, mx, npts, inter, union) = _evaluate(grid, gset, k)
+    st, (sse, mx, npts, inter, union) = _evaluate(grid, gset, k, chunk)
     cw, is_ls, kk = st["cw"], st["is_ls"], st["k"]
     n = float(np.sum(npts * cw))
     rmse = float(np.sqrt(np.sum(sse * cw) / n)) if n else 0.0
@@ -320,7 +435,7 @@ def field_error(grid, gset, k=DEFAULT_K) -> dict:
     den = nrmse_denominator(is_ls, vmin, vmax)
     out = dict(rmse=rmse, nrmse=rmse / den, max_abs=float(mx.max()) if len(mx) else 0.0,
                nrmse_denominator=float(den), points=int(n), k_sigma=kk,
-               pairs=int(len(st["pg"])), seconds=time.perf_counter() - t0)
+               pairs=int(st["pairs"]), seconds=time.perf_counter() - t0)
     if is_ls:
         it, un = float(np.sum(inter * cw)), float(np.sum(union * cw))
         out.update(surface_iou=it / un if un else 1.0, surface_mismatch=(un - it) / n if n else 0.0,
