@@ -47,24 +47,26 @@ def _find(keys, key):
     return -1
 
 
+@njit(cache=True, inline="always")
+def _box(g, cent, sig, k, a):
+    """Gaussian g's k-sigma box along axis a in voxels: (first, last) index."""
+    r = k * sig[g, a]
+    return np.int64(np.ceil(cent[g, a] - r)), np.int64(np.floor(cent[g, a] + r))
+
+
 @njit(cache=True)
 def _cells_of(g, cent, sig, k, keys, corg, out, pos, write):
-    imin = np.empty(3, np.int64)
-    imax = np.empty(3, np.int64)
-    for a in range(3):
-        r = k * sig[g, a]
-        imin[a] = np.int64(np.ceil(cent[g, a] - r))
-        imax[a] = np.int64(np.floor(cent[g, a] + r))
-        if imin[a] > imax[a]:
-            return 0
-    c0 = imin >> 3
-    c1 = imax >> 3
-    vol = (c1[0] - c0[0] + 1) * (c1[1] - c0[1] + 1) * (c1[2] - c0[2] + 1)
+    ix0, ix1 = _box(g, cent, sig, k, 0)
+    iy0, iy1 = _box(g, cent, sig, k, 1)
+    iz0, iz1 = _box(g, cent, sig, k, 2)
+    if ix0 > ix1 or iy0 > iy1 or iz0 > iz1:
+        return 0
+    vol = ((ix1 >> 3) - (ix0 >> 3) + 1) * ((iy1 >> 3) - (iy0 >> 3) + 1) * ((iz1 >> 3) - (iz0 >> 3) + 1)
     n = 0
     if vol <= keys.shape[0]:
-        for x in range(c0[0], c1[0] + 1):
-            for y in range(c0[1], c1[1] + 1):
-                for z in range(c0[2], c1[2] + 1):
+        for x in range(ix0 >> 3, (ix1 >> 3) + 1):
+            for y in range(iy0 >> 3, (iy1 >> 3) + 1):
+                for z in range(iz0 >> 3, (iz1 >> 3) + 1):
                     j = _find(keys, _key(x, y, z))
                     if j >= 0:
                         if write:
@@ -72,15 +74,49 @@ def _cells_of(g, cent, sig, k, keys, corg, out, pos, write):
                         n += 1
     else:  # huge support (big tiles): test every cell
         for j in range(keys.shape[0]):
-            ok = True
-            for a in range(3):
-                if corg[j, a] + 7 < imin[a] or corg[j, a] > imax[a]:
-                    ok = False
-            if ok:
+            if (corg[j, 0] + 7 >= ix0 and corg[j, 0] <= ix1 and corg[j, 1] + 7 >= iy0
+                    and corg[j, 1] <= iy1 and corg[j, 2] + 7 >= iz0 and corg[j, 2] <= iz1):
                 if write:
                     out[pos + n] = j
                 n += 1
     return n
+
+
+@njit(cache=True)
+def _lut_cells_of(g, cent, sig, k, lut, lmin, out, pos, write):
+    """_cells_of with the cells' indices in a dense box lut (cell lmin + (i, j, l) -> index or -1):
+    the same cells in the same order (x, then y, then z: the key order)."""
+    ix0, ix1 = _box(g, cent, sig, k, 0)
+    iy0, iy1 = _box(g, cent, sig, k, 1)
+    iz0, iz1 = _box(g, cent, sig, k, 2)
+    if ix0 > ix1 or iy0 > iy1 or iz0 > iz1:
+        return 0
+    n = 0
+    for x in range(max(ix0 >> 3, lmin[0]), min(ix1 >> 3, lmin[0] + lut.shape[0] - 1) + 1):
+        for y in range(max(iy0 >> 3, lmin[1]), min(iy1 >> 3, lmin[1] + lut.shape[1] - 1) + 1):
+            for z in range(max(iz0 >> 3, lmin[2]), min(iz1 >> 3, lmin[2] + lut.shape[2] - 1) + 1):
+                j = lut[x - lmin[0], y - lmin[1], z - lmin[2]]
+                if j >= 0:
+                    if write:
+                        out[pos + n] = j
+                    n += 1
+    return n
+
+
+@parallel_njit(cache=True)
+def _lut_pairs(cent, sig, k, lut, lmin):
+    """The pairs of a chunk of cells (lut: its cells' box): per Gaussian start, cell of each pair."""
+    m = cent.shape[0]
+    start = np.zeros(m + 1, np.int64)
+    dummy = np.zeros(1, np.int32)
+    for g in prange(m):
+        start[g + 1] = _lut_cells_of(g, cent, sig, k, lut, lmin, dummy, 0, False)
+    for g in range(m):
+        start[g + 1] += start[g]
+    pc = np.empty(start[m], np.int32)
+    for g in prange(m):
+        _lut_cells_of(g, cent, sig, k, lut, lmin, pc, start[g], True)
+    return start, pc
 
 
 @parallel_njit(cache=True)
@@ -113,25 +149,79 @@ def axis_terms(c, g, corg, cent, sig, power, cut, q, e):
 
 
 @njit(cache=True, inline="always")
+def _add_gaussian(acc, wg, k2, q, e):
+    """acc += wg x the separable exponentials e where the k-sigma ellipsoid holds (q: d^2)."""
+    for x in range(8):
+        if q[0, x] > k2:
+            continue
+        for y in range(8):
+            qxy = q[0, x] + q[1, y]
+            if qxy > k2:
+                continue
+            wxy = wg * e[0, x] * e[1, y]
+            base = x * 64 + y * 8
+            # q[2] is unimodal in z (|d| is monotonic in the distance, and so is its rounding):
+            # the voxels within the ellipsoid are one run, summed without a test per voxel
+            z0 = 0
+            while z0 < 8 and not qxy + q[2, z0] <= k2:
+                z0 += 1
+            z1 = 7
+            while z1 > z0 and not qxy + q[2, z1] <= k2:
+                z1 -= 1
+            for z in range(z0, z1 + 1):
+                acc[base + z] += wxy * e[2, z]
+
+
+@njit(cache=True, inline="always")
 def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
     """Add to acc (512) the mixture at the voxel centres of cell c: every Gaussian listed for the
     cell, truncated at k sigma (k2 = k^2), with separable exponentials per axis."""
     for p in range(cstart[c], cstart[c + 1]):
         g = pg[p]
         axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
-        wg = w[g]
-        for x in range(8):
-            if q[0, x] > k2:
-                continue
-            for y in range(8):
-                qxy = q[0, x] + q[1, y]
-                if qxy > k2:
-                    continue
-                wxy = wg * e[0, x] * e[1, y]
-                base = x * 64 + y * 8
-                for z in range(8):
-                    if qxy + q[2, z] <= k2:
-                        acc[base + z] += wxy * e[2, z]
+        _add_gaussian(acc, w[g], k2, q, e)
+
+
+def axis_tables(u, k, limit=1 << 23):
+    """Centres on the half-voxel lattice (every set build_lod or the decoder makes) with few
+    distinct sigmas u: d = (voxel - centre) / sigma takes few values, so q = d^2 and
+    e = exp(-d^2/2) come from a table over (sigma, h = 2 x (voxel - centre)), made with the very
+    operations axis_terms does (the same bits). Returns (tq, te, H), tables over h in [-H, H]
+    (beyond it q > k^2), or None above ``limit`` entries."""
+    hh = int(np.ceil(2.0 * k * u.max())) + 2
+    if len(u) * (2 * hh + 1) > limit:
+        return None
+    return (*_tables(u, float(k), hh), hh)
+
+
+@njit(cache=True)
+def _tables(u, k, hh):
+    tq = np.empty((u.shape[0], 2 * hh + 1))
+    te = np.empty((u.shape[0], 2 * hh + 1))
+    k2 = k * k
+    power = 1.0
+    for s in range(u.shape[0]):
+        for h in range(-hh, hh + 1):
+            d = (h * 0.5) / u[s]  # = (voxel - centre) / sigma: the difference is exact
+            tq[s, h + hh] = d * d
+            te[s, h + hh] = np.exp(-0.5 * power * d * d) if d * d <= k2 else 0.0
+    return tq, te
+
+
+@njit(cache=True, inline="always")
+def _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e):
+    """axis_terms (power 1) from axis_tables' tables."""
+    for a in range(3):
+        h0 = 2 * corg[c, a] - c2[g, a] + hh
+        s = sid[g, a]
+        for li in range(8):
+            i = h0 + 2 * li
+            if 0 <= i <= 2 * hh:
+                q[a, li] = tq[s, i]
+                e[a, li] = te[s, i]
+            else:
+                q[a, li] = np.inf
+                e[a, li] = 0.0
 
 
 @njit(cache=True, inline="always")
@@ -184,7 +274,9 @@ def pair_sums(c, g, corg, cent, sig, k2, power, q, e, act, res, wt):
 
 
 @parallel_njit(cache=True)
-def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
+def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh):
+    """Per cell: squared residual, max |residual|, active voxels, and the occupancy's
+    intersection and union. hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te, hh)."""
     nc = corg.shape[0]
     sse = np.zeros(nc)
     mx = np.zeros(nc)
@@ -198,7 +290,13 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
         act = np.zeros(512, np.bool_)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
-        cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
+        for p in range(cstart[c], cstart[c + 1]):
+            g = pg[p]
+            if hh >= 0:
+                _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
+            else:
+                axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
+            _add_gaussian(acc, w[g], k2, q, e)
         sse[c], mx[c], npts[c] = cell_residual(c, cmask, cref, acc, res, act)
         it = 0.0
         un = 0.0
@@ -354,6 +452,64 @@ def _by_cell(start, pc, ncell):
     return cstart, pg
 
 
+@njit(cache=True)
+def distinct_sigmas(sig, most=64):
+    """The distinct values of sig (float32 (m, 3)) as float64, and False past ``most`` of them."""
+    u = np.empty(most)
+    n = 0
+    for g in range(sig.shape[0]):
+        for a in range(3):
+            v = np.float64(sig[g, a])
+            j = 0
+            while j < n and u[j] != v:
+                j += 1
+            if j == n:
+                if n == most:
+                    return u[:n], False
+                u[n] = v
+                n += 1
+    return u[:n], True
+
+
+@parallel_njit(cache=True)
+def _gather(grp, gstart, origins, offsets, sigmas, values, amps, u):
+    """Centres and sigmas (float64, as GaussianSet.centers() and setup make them) and weights
+    of the Gaussians of groups grp, in order; with u (the set's distinct sigmas) also their
+    doubled centres (int64) and sigma ids for the axis tables, and whether every centre is on
+    the half-voxel lattice."""
+    ng = grp.shape[0]
+    first = np.zeros(ng + 1, np.int64)
+    for i in range(ng):
+        first[i + 1] = first[i] + gstart[grp[i] + 1] - gstart[grp[i]]
+    m = first[ng]
+    cent = np.empty((m, 3))
+    sig = np.empty((m, 3))
+    w = np.empty(m)
+    c2 = np.zeros((m, 3), np.int64)
+    sid = np.zeros((m, 3), np.int32)
+    off = np.zeros(ng, np.bool_)
+    for i in prange(ng):
+        gi = grp[i]
+        for j in range(gstart[gi], gstart[gi + 1]):
+            o = first[i] + j - gstart[gi]
+            w[o] = np.float64(values[j]) * np.float64(amps[j])
+            for a in range(3):
+                c = np.float64(origins[gi, a]) + np.float64(offsets[j, a])
+                s = np.float64(sigmas[j, a])
+                cent[o, a] = c
+                sig[o, a] = s
+                h = np.rint(2.0 * c)
+                if h != 2.0 * c or abs(h) >= 2.0 ** 52:
+                    off[i] = True
+                else:
+                    c2[o, a] = np.int64(h)
+                t = 0
+                while t < u.shape[0] - 1 and u[t] != s:
+                    t += 1
+                sid[o, a] = t
+    return cent, sig, w, c2, sid, not off.any()
+
+
 class _Reach:
     """Which Gaussians a run of cells (contiguous in key order, so in cell x) can meet. Leaf
     groups are sorted by origin: the running maximum of their reach's high end and the running
@@ -362,28 +518,36 @@ class _Reach:
 
     def __init__(self, gset, k):
         self.gs, gstart, nl = gset, gset.group_start, gset.n_leaf_groups
-        lo, hi = _group_reach(np.asarray(gset.group_origins), gstart, gset.offsets, gset.sigmas,
-                              float(k))
+        self.origins = np.asarray(gset.group_origins).reshape(-1, 3)
+        lo, hi = _group_reach(self.origins, gstart, gset.offsets, gset.sigmas, float(k))
         self.pmax = np.maximum.accumulate(hi[:nl])
         self.smin = np.minimum.accumulate(lo[:nl][::-1])[::-1]
         self.tlo, self.thi, self.nl = lo[nl:], hi[nl:], nl
+        self.u, few = distinct_sigmas(gset.sigmas)
+        self.tables = axis_tables(self.u, k) if few and len(self.u) else None
 
     def geometry(self, xa, xb):
-        """(centres, sigmas, weights) float64 of the Gaussians whose boxes reach cell x in
-        [xa, xb], in increasing index order (so each cell sums them in the set's order)."""
+        """The Gaussians whose boxes reach cell x in [xa, xb], in increasing index order (so each
+        cell sums them in the set's order): (centres, sigmas, weights, axis-table arguments of
+        _eval_cells)."""
         g = self.gs
         g0 = int(np.searchsorted(self.pmax, xa, "left"))
         g1 = max(g0, int(np.searchsorted(self.smin, xb, "right")))
         tsel = np.flatnonzero((self.thi >= xa) & (self.tlo <= xb)) + self.nl
         grp = np.concatenate([np.arange(g0, g1, dtype=np.int64), tsel])
-        cnt = g.group_start[grp + 1] - g.group_start[grp]
-        first = np.repeat(g.group_start[grp] - (np.cumsum(cnt) - cnt), cnt)
-        idx = first + np.arange(len(first), dtype=np.int64)
-        cent = g.group_origins[np.repeat(grp, cnt)].astype(np.float64) + g.offsets[idx]
-        w = g.values[idx].astype(np.float64) * g.amplitudes[idx].astype(np.float64)
-        return cent, g.sigmas[idx].astype(np.float64), w
+        u = self.u if len(self.u) else np.zeros(1)
+        cent, sig, w, c2, sid, lattice = _gather(grp, g.group_start, self.origins, g.offsets,
+                                                 g.sigmas, g.values, g.amplitudes, u)
+        if lattice and self.tables is not None:
+            return cent, sig, w, (c2, sid, *self.tables)
+        return cent, sig, w, _NO_TABLES
 
 
+_NO_TABLES = (np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int32), np.zeros((0, 0)),
+              np.zeros((0, 0)), -1)
+
+
+LUT_CELLS = 1 << 22  # a chunk's dense cell box (int32) up to 16 MB
 DEFAULT_CHUNK = 8192  # cells per evaluation chunk: at High ~1,400 pairs each, ~150 MB of lists
 
 
@@ -399,17 +563,25 @@ def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK):
     for a in range(0, nc, max(1, int(chunk))):
         b = min(nc, a + max(1, int(chunk)))
         keys, corg = t["keys"][a:b], t["corg"][a:b]
-        cent, sig, w = reach.geometry(corg[0, 0] >> 3, corg[-1, 0] >> 3)
-        cnt = _count_pairs(cent, sig, kk, keys, corg)
-        start = np.zeros(len(cnt) + 1, np.int64)
-        np.cumsum(cnt, out=start[1:])
-        pc = np.empty(int(start[-1]), np.int32)
-        _fill_pairs(cent, sig, kk, keys, corg, start, pc)
+        cent, sig, w, tab = reach.geometry(corg[0, 0] >> 3, corg[-1, 0] >> 3)
+        lmin = corg.min(0) >> 3
+        dims = (corg.max(0) >> 3) - lmin + 1
+        if np.prod(dims) <= LUT_CELLS:  # the chunk's cells in a dense box
+            lut = np.full(tuple(dims), -1, np.int32)
+            rel = (corg >> 3) - lmin
+            lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(b - a, dtype=np.int32)
+            start, pc = _lut_pairs(cent, sig, kk, lut, lmin)
+        else:  # scattered cells: binary searches in their keys
+            cnt = _count_pairs(cent, sig, kk, keys, corg)
+            start = np.zeros(len(cnt) + 1, np.int64)
+            np.cumsum(cnt, out=start[1:])
+            pc = np.empty(int(start[-1]), np.int32)
+            _fill_pairs(cent, sig, kk, keys, corg, start, pc)
         cstart, pg = _by_cell(start, pc, b - a)
         del pc
         pairs += len(pg)
         cref = _cref(t["ref"], t["rows"][a:b], t["is_ls"])
-        res = _eval_cells(corg, t["cmask"][a:b], cref, cstart, pg, cent, sig, w, kk)
+        res = _eval_cells(corg, t["cmask"][a:b], cref, cstart, pg, cent, sig, w, kk, *tab)
         for o, r in zip(out, res):
             o[a:b] = r
     return dict(t, pairs=pairs, k=kk), out
