@@ -165,6 +165,81 @@ def encoded_nbytes(enc: dict) -> int:
     return int(sum(np.asarray(a).nbytes for a in enc.values()))
 
 
+CHUNK = 1 << 21  # Gaussians per pass of the per-Gaussian streams (a multiple of 8: whole bytes)
+
+
+def _chunks(n, step=CHUNK):
+    return [(i, min(n, i + step)) for i in range(0, n, step)]
+
+
+class _Packer:
+    """pack() of a stream given in pieces of any length: whole bytes are packed as they come, the
+    last < 8 values wait for the next piece (the same bytes as one pack of the whole stream)."""
+
+    def __init__(self, width):
+        self.width, self.out, self.rest = width, [], np.zeros(0, np.uint64)
+
+    def add(self, vals):
+        v = np.concatenate([self.rest, np.asarray(vals, np.uint64).ravel()])
+        cut = len(v) - len(v) % 8
+        self.out.append(pack(v[:cut], self.width))
+        self.rest = v[cut:]
+
+    def bytes(self):
+        self.out.append(pack(self.rest, self.width))
+        return np.concatenate(self.out)
+
+
+def _leaf_streams(g, ml, meta):
+    """Centres, size codes, sphere flags and explicit voxel counts of the ml leaf-group Gaussians,
+    in chunks (the whole-set int64 and float64 copies were the encoder's peak memory): a pass for
+    the ranges and modes, then one that packs. Fills meta; returns the streams."""
+    cmin, cmax, smin, smax, vmax = np.inf, -np.inf, np.inf, -np.inf, -1
+    nsph = 0
+
+    def piece(i, j):
+        off = g.offsets[i:j].astype(np.float64)
+        c2 = np.rint(off * 2).astype(np.int64)
+        if not np.array_equal(c2 * 0.5, off):
+            raise ValueError("centres must lie on the half-voxel lattice")
+        codes = g.size_codes[i:j].astype(np.int64)
+        sph = (codes[:, 0] == codes[:, 1]) & (codes[:, 1] == codes[:, 2])
+        flat = codes[np.arange(3)[None, :] < np.where(sph, 1, 3)[:, None]]  # spheres 1 code
+        vox = g.voxels[i:j].astype(np.int64)
+        explicit = vox != codes[:, 0] * codes[:, 1] * codes[:, 2]
+        return c2, sph, flat, vox, explicit
+
+    for i, j in _chunks(ml):
+        c2, sph, flat, vox, explicit = piece(i, j)
+        cmin, cmax = min(cmin, int(c2.min())), max(cmax, int(c2.max()))
+        smin, smax = min(smin, int(flat.min())), max(smax, int(flat.max()))
+        nsph += int(sph.sum())
+        if explicit.any():
+            vmax = max(vmax, int(vox[explicit].max()))
+    meta.update(cmin=cmin, w_c=_bitlen(cmax - cmin), smin=smin, w_s=_bitlen(smax - smin),
+                sphere_mode=0 if nsph == ml else 1 if nsph == 0 else 2)
+    if vmax >= 0:
+        meta.update(v_mode=1, w_v=_bitlen(vmax))
+    centre, sizes, vexp = _Packer(meta["w_c"]), _Packer(meta["w_s"]), _Packer(meta["w_v"])
+    sflags, vflags = [], []
+    for i, j in _chunks(ml):
+        c2, sph, flat, vox, explicit = piece(i, j)
+        centre.add(c2 - cmin)
+        sizes.add(flat - smin)
+        if meta["sphere_mode"] == 2:
+            sflags.append(np.packbits(sph.astype(np.uint8), bitorder="little"))
+        if vmax >= 0:
+            vflags.append(np.packbits(explicit.astype(np.uint8), bitorder="little"))
+            vexp.add(vox[explicit])
+    enc = dict(centre=centre.bytes())  # the keys in the order the encoding always had
+    if sflags:
+        enc["sphere_flags"] = np.concatenate(sflags)
+    enc["sizes"] = sizes.bytes()
+    if vflags:
+        enc.update(v_flags=np.concatenate(vflags), v_explicit=vexp.bytes())
+    return enc
+
+
 def encode_compact(g: GaussianSet) -> dict:
     meta = dict.fromkeys(_META, 0)
     nl, ng = g.n_leaf_groups, len(g.group_origins)
@@ -203,34 +278,7 @@ def encode_compact(g: GaussianSet) -> dict:
             enc["counts"] = pack(counts - 1, meta["w_count"])
     # -- per-Gaussian streams (leaf groups)
     if ml:
-        c2 = np.rint(g.offsets[:ml].astype(np.float64) * 2).astype(np.int64)
-        if not np.array_equal(c2 * 0.5, g.offsets[:ml].astype(np.float64)):
-            raise ValueError("centres must lie on the half-voxel lattice")
-        cmin = int(c2.min())
-        meta.update(cmin=cmin, w_c=_bitlen(int(c2.max()) - cmin))
-        enc["centre"] = pack((c2 - cmin).ravel(), meta["w_c"])
-        codes = g.size_codes[:ml].astype(np.int64)
-        sph = (codes[:, 0] == codes[:, 1]) & (codes[:, 1] == codes[:, 2])
-        if sph.all():
-            meta["sphere_mode"] = 0
-        elif not sph.any():
-            meta["sphere_mode"] = 1
-        else:
-            meta["sphere_mode"] = 2
-            enc["sphere_flags"] = np.packbits(sph.astype(np.uint8), bitorder="little")
-        per = np.where(sph, 1, 3)
-        sel = np.arange(3)[None, :] < per[:, None]  # row-major: spheres 1 code, ellipsoids 3
-        flat = codes[sel]
-        smin = int(flat.min())
-        meta.update(smin=smin, w_s=_bitlen(int(flat.max()) - smin))
-        enc["sizes"] = pack(flat - smin, meta["w_s"])
-        default_v = codes[:, 0] * codes[:, 1] * codes[:, 2]
-        vox = g.voxels[:ml].astype(np.int64)
-        explicit = vox != default_v
-        if explicit.any():
-            meta.update(v_mode=1, w_v=_bitlen(int(vox[explicit].max())))
-            enc["v_flags"] = np.packbits(explicit.astype(np.uint8), bitorder="little")
-            enc["v_explicit"] = pack(vox[explicit], meta["w_v"])
+        enc.update(_leaf_streams(g, ml, meta))
     # -- tiles: one Gaussian each, fully determined by origin, edge and value
     nt = ng - nl
     if nt:
@@ -259,15 +307,17 @@ def encode_compact(g: GaussianSet) -> dict:
             rng = (vmax - vmin) if vmin is not None else 0.0
             rng = max(rng, float(v.max() - v.min()))
             v16 = v.astype(np.float16)
-            ok = bool(np.all(np.isfinite(v16))) and (
-                float(np.max(np.abs(v16.astype(np.float64) - v))) <= VALUE_TOL * rng)
+            ok = all(bool(np.all(np.isfinite(v16[i:j]))) and float(np.max(np.abs(
+                v16[i:j].astype(np.float64) - v[i:j]))) <= VALUE_TOL * rng for i, j in _chunks(len(v)))
             meta["value_mode"] = 2 if ok else 3
             enc["values"] = v16 if ok else v.astype(np.float32)
     # -- amplitudes: derived from sigma and V; a refined set stores its quantized factors
     meta.update(amp_mode=0, amp_cmin=0, w_amp=0)
     if g.count and g.weights == "field":
-        a0 = amplitudes64(g.sigmas, g.true_voxels(), "field")
-        if not np.array_equal(a0.astype(np.float32), g.amplitudes):
+        tv = g.true_voxels()
+        if not all(np.array_equal(amplitudes64(g.sigmas[i:j], tv[i:j], "field").astype(np.float32),
+                                  g.amplitudes[i:j]) for i, j in _chunks(g.count)):
+            a0 = amplitudes64(g.sigmas, tv, "field")
             c = quantize_factors(g.amplitudes.astype(np.float64) / a0)
             if np.array_equal((a0 * factors_from_codes(c)).astype(np.float32), g.amplitudes):
                 cmin = int(c.min())

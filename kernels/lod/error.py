@@ -47,24 +47,26 @@ def _find(keys, key):
     return -1
 
 
+@njit(cache=True, inline="always")
+def _box(g, cent, sig, k, a):
+    """Gaussian g's k-sigma box along axis a in voxels: (first, last) index."""
+    r = k * sig[g, a]
+    return np.int64(np.ceil(cent[g, a] - r)), np.int64(np.floor(cent[g, a] + r))
+
+
 @njit(cache=True)
 def _cells_of(g, cent, sig, k, keys, corg, out, pos, write):
-    imin = np.empty(3, np.int64)
-    imax = np.empty(3, np.int64)
-    for a in range(3):
-        r = k * sig[g, a]
-        imin[a] = np.int64(np.ceil(cent[g, a] - r))
-        imax[a] = np.int64(np.floor(cent[g, a] + r))
-        if imin[a] > imax[a]:
-            return 0
-    c0 = imin >> 3
-    c1 = imax >> 3
-    vol = (c1[0] - c0[0] + 1) * (c1[1] - c0[1] + 1) * (c1[2] - c0[2] + 1)
+    ix0, ix1 = _box(g, cent, sig, k, 0)
+    iy0, iy1 = _box(g, cent, sig, k, 1)
+    iz0, iz1 = _box(g, cent, sig, k, 2)
+    if ix0 > ix1 or iy0 > iy1 or iz0 > iz1:
+        return 0
+    vol = ((ix1 >> 3) - (ix0 >> 3) + 1) * ((iy1 >> 3) - (iy0 >> 3) + 1) * ((iz1 >> 3) - (iz0 >> 3) + 1)
     n = 0
     if vol <= keys.shape[0]:
-        for x in range(c0[0], c1[0] + 1):
-            for y in range(c0[1], c1[1] + 1):
-                for z in range(c0[2], c1[2] + 1):
+        for x in range(ix0 >> 3, (ix1 >> 3) + 1):
+            for y in range(iy0 >> 3, (iy1 >> 3) + 1):
+                for z in range(iz0 >> 3, (iz1 >> 3) + 1):
                     j = _find(keys, _key(x, y, z))
                     if j >= 0:
                         if write:
@@ -72,15 +74,49 @@ def _cells_of(g, cent, sig, k, keys, corg, out, pos, write):
                         n += 1
     else:  # huge support (big tiles): test every cell
         for j in range(keys.shape[0]):
-            ok = True
-            for a in range(3):
-                if corg[j, a] + 7 < imin[a] or corg[j, a] > imax[a]:
-                    ok = False
-            if ok:
+            if (corg[j, 0] + 7 >= ix0 and corg[j, 0] <= ix1 and corg[j, 1] + 7 >= iy0
+                    and corg[j, 1] <= iy1 and corg[j, 2] + 7 >= iz0 and corg[j, 2] <= iz1):
                 if write:
                     out[pos + n] = j
                 n += 1
     return n
+
+
+@njit(cache=True)
+def _lut_cells_of(g, cent, sig, k, lut, lmin, out, pos, write):
+    """_cells_of with the cells' indices in a dense box lut (cell lmin + (i, j, l) -> index or -1):
+    the same cells in the same order (x, then y, then z: the key order)."""
+    ix0, ix1 = _box(g, cent, sig, k, 0)
+    iy0, iy1 = _box(g, cent, sig, k, 1)
+    iz0, iz1 = _box(g, cent, sig, k, 2)
+    if ix0 > ix1 or iy0 > iy1 or iz0 > iz1:
+        return 0
+    n = 0
+    for x in range(max(ix0 >> 3, lmin[0]), min(ix1 >> 3, lmin[0] + lut.shape[0] - 1) + 1):
+        for y in range(max(iy0 >> 3, lmin[1]), min(iy1 >> 3, lmin[1] + lut.shape[1] - 1) + 1):
+            for z in range(max(iz0 >> 3, lmin[2]), min(iz1 >> 3, lmin[2] + lut.shape[2] - 1) + 1):
+                j = lut[x - lmin[0], y - lmin[1], z - lmin[2]]
+                if j >= 0:
+                    if write:
+                        out[pos + n] = j
+                    n += 1
+    return n
+
+
+@parallel_njit(cache=True)
+def _lut_pairs(cent, sig, k, lut, lmin):
+    """The pairs of a chunk of cells (lut: its cells' box): per Gaussian start, cell of each pair."""
+    m = cent.shape[0]
+    start = np.zeros(m + 1, np.int64)
+    dummy = np.zeros(1, np.int32)
+    for g in prange(m):
+        start[g + 1] = _lut_cells_of(g, cent, sig, k, lut, lmin, dummy, 0, False)
+    for g in range(m):
+        start[g + 1] += start[g]
+    pc = np.empty(start[m], np.int32)
+    for g in prange(m):
+        _lut_cells_of(g, cent, sig, k, lut, lmin, pc, start[g], True)
+    return start, pc
 
 
 @parallel_njit(cache=True)
@@ -100,14 +136,40 @@ def _fill_pairs(cent, sig, k, keys, corg, start, out):
 
 
 @njit(cache=True, inline="always")
-def axis_terms(c, g, corg, cent, sig, power, q, e):
+def axis_terms(c, g, corg, cent, sig, power, cut, q, e):
     """Along each axis a, at the 8 voxel centres l of cell c: q[a, l] = d^2 and
-    e[a, l] = exp(-power d^2 / 2), d the distance to Gaussian g's centre in its sigmas."""
+    e[a, l] = exp(-power d^2 / 2), d the distance to Gaussian g's centre in its sigmas. Beyond
+    the truncation (q > cut) e is 0 and never read (every caller skips those voxels): the
+    exponentials are most of the evaluation's cost, about half of them out there."""
     for a in range(3):
         for li in range(8):
             d = (corg[c, a] + li - cent[g, a]) / sig[g, a]
             q[a, li] = d * d
-            e[a, li] = np.exp(-0.5 * power * d * d)
+            e[a, li] = np.exp(-0.5 * power * d * d) if d * d <= cut else 0.0
+
+
+@njit(cache=True, inline="always")
+def _add_gaussian(acc, wg, k2, q, e):
+    """acc += wg x the separable exponentials e where the k-sigma ellipsoid holds (q: d^2)."""
+    for x in range(8):
+        if q[0, x] > k2:
+            continue
+        for y in range(8):
+            qxy = q[0, x] + q[1, y]
+            if qxy > k2:
+                continue
+            wxy = wg * e[0, x] * e[1, y]
+            base = x * 64 + y * 8
+            # q[2] is unimodal in z (|d| is monotonic in the distance, and so is its rounding):
+            # the voxels within the ellipsoid are one run, summed without a test per voxel
+            z0 = 0
+            while z0 < 8 and not qxy + q[2, z0] <= k2:
+                z0 += 1
+            z1 = 7
+            while z1 > z0 and not qxy + q[2, z1] <= k2:
+                z1 -= 1
+            for z in range(z0, z1 + 1):
+                acc[base + z] += wxy * e[2, z]
 
 
 @njit(cache=True, inline="always")
@@ -116,20 +178,50 @@ def cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e):
     cell, truncated at k sigma (k2 = k^2), with separable exponentials per axis."""
     for p in range(cstart[c], cstart[c + 1]):
         g = pg[p]
-        axis_terms(c, g, corg, cent, sig, 1.0, q, e)
-        wg = w[g]
-        for x in range(8):
-            if q[0, x] > k2:
-                continue
-            for y in range(8):
-                qxy = q[0, x] + q[1, y]
-                if qxy > k2:
-                    continue
-                wxy = wg * e[0, x] * e[1, y]
-                base = x * 64 + y * 8
-                for z in range(8):
-                    if qxy + q[2, z] <= k2:
-                        acc[base + z] += wxy * e[2, z]
+        axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
+        _add_gaussian(acc, w[g], k2, q, e)
+
+
+def axis_tables(u, k, limit=1 << 23):
+    """Centres on the half-voxel lattice (every set build_lod or the decoder makes) with few
+    distinct sigmas u: d = (voxel - centre) / sigma takes few values, so q = d^2 and
+    e = exp(-d^2/2) come from a table over (sigma, h = 2 x (voxel - centre)), made with the very
+    operations axis_terms does (the same bits). Returns (tq, te, H), tables over h in [-H, H]
+    (beyond it q > k^2), or None above ``limit`` entries."""
+    hh = int(np.ceil(2.0 * k * u.max())) + 2
+    if len(u) * (2 * hh + 1) > limit:
+        return None
+    return (*_tables(u, float(k), hh), hh)
+
+
+@njit(cache=True)
+def _tables(u, k, hh):
+    tq = np.empty((u.shape[0], 2 * hh + 1))
+    te = np.empty((u.shape[0], 2 * hh + 1))
+    k2 = k * k
+    power = 1.0
+    for s in range(u.shape[0]):
+        for h in range(-hh, hh + 1):
+            d = (h * 0.5) / u[s]  # = (voxel - centre) / sigma: the difference is exact
+            tq[s, h + hh] = d * d
+            te[s, h + hh] = np.exp(-0.5 * power * d * d) if d * d <= k2 else 0.0
+    return tq, te
+
+
+@njit(cache=True, inline="always")
+def _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e):
+    """axis_terms (power 1) from axis_tables' tables."""
+    for a in range(3):
+        h0 = 2 * corg[c, a] - c2[g, a] + hh
+        s = sid[g, a]
+        for li in range(8):
+            i = h0 + 2 * li
+            if 0 <= i <= 2 * hh:
+                q[a, li] = tq[s, i]
+                e[a, li] = te[s, i]
+            else:
+                q[a, li] = np.inf
+                e[a, li] = 0.0
 
 
 @njit(cache=True, inline="always")
@@ -160,7 +252,7 @@ def pair_sums(c, g, corg, cent, sig, k2, power, q, e, act, res, wt):
     """For Gaussian g listed in cell c: (sum psi res, sum psi wt) over the active voxels (act) of
     the cell, psi = g^power (the Gaussian narrowed to sigma / sqrt(power), cut at k2 / power)."""
     k2p = k2 / power
-    axis_terms(c, g, corg, cent, sig, power, q, e)
+    axis_terms(c, g, corg, cent, sig, power, k2p, q, e)
     num = 0.0
     den = 0.0
     for x in range(8):
@@ -182,7 +274,9 @@ def pair_sums(c, g, corg, cent, sig, k2, power, q, e, act, res, wt):
 
 
 @parallel_njit(cache=True)
-def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
+def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh):
+    """Per cell: squared residual, max |residual|, active voxels, and the occupancy's
+    intersection and union. hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te, hh)."""
     nc = corg.shape[0]
     sse = np.zeros(nc)
     mx = np.zeros(nc)
@@ -196,7 +290,13 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
         act = np.zeros(512, np.bool_)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
-        cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
+        for p in range(cstart[c], cstart[c + 1]):
+            g = pg[p]
+            if hh >= 0:
+                _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
+            else:
+                axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
+            _add_gaussian(acc, w[g], k2, q, e)
         sse[c], mx[c], npts[c] = cell_residual(c, cmask, cref, acc, res, act)
         it = 0.0
         un = 0.0
@@ -213,20 +313,21 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k):
 
 
 def _cells(grid, gset):
-    """Evaluation cells: leaves, then active tiles as 8^3 pseudo-leaves; reference per voxel."""
+    """Evaluation cells: leaves, then active tiles as 8^3 pseudo-leaves; origins, masks, weights,
+    and where each cell's reference per voxel comes from (made per chunk by _cref: a copy of
+    every reference at once would be as large as the voxel values)."""
     is_ls = grid.grid_class == "level_set"
     band = bool(gset.params.get("level_set_band", False)) if gset.params else False
     if is_ls and not gset.params:  # decoded set: no params; assume the default (band on)
         band = True
     corg = [np.asarray(grid.leaf_origins, np.int64).reshape(-1, 3)]
     cmask = [np.asarray(grid.leaf_masks, np.uint64).reshape(-1, 8)]
-    if is_ls:
-        kept, _ = effective_masks(grid, band)
-        bits = ((np.asarray(kept)[:, :, None] >> np.arange(64, dtype=np.uint64)) & np.uint64(1))
-        cref = [bits.reshape(len(kept), 512).astype(np.float32)]
+    if is_ls:  # the reference occupancy: the kept bits
+        leaf = np.asarray(effective_masks(grid, band)[0], np.uint64).reshape(-1, 8)
     else:
-        cref = [np.asarray(grid.leaf_values, np.float32).reshape(-1, 512)]
+        leaf = np.asarray(grid.leaf_values, np.float32).reshape(-1, 512)
     cw = [np.ones(len(corg[0]))]
+    tref = np.zeros(0, np.float32)
     act = np.nonzero(np.asarray(grid.tile_active, bool))[0]
     if len(act):
         to = np.asarray(grid.tile_origins, np.int64).reshape(-1, 3)[act]
@@ -237,13 +338,27 @@ def _cells(grid, gset):
         cmask.append(np.full((len(act), 8), np.iinfo(np.uint64).max, np.uint64))
         if is_ls:
             thr = band_threshold(grid) if band else np.inf
-            ref = (np.abs(tv) <= thr).astype(np.float32)
+            tref = (np.abs(tv) <= thr).astype(np.float32)
         else:
-            ref = tv
-        cref.append(np.repeat(ref[:, None], 512, 1))
+            tref = tv
         cw.append((ts / 8.0) ** 3)
-    return (np.concatenate(corg), np.concatenate(cmask), np.concatenate(cref),
-            np.concatenate(cw), is_ls)
+    return (np.concatenate(corg), np.concatenate(cmask), np.concatenate(cw), is_ls,
+            dict(leaf=leaf, tile=tref))
+
+
+def _cref(ref, rows, is_ls):
+    """float32 (len(rows), 512): the reference per voxel of the cells ``rows`` (_cells' order)."""
+    out = np.empty((len(rows), 512), np.float32)
+    nleaf = len(ref["leaf"])
+    leaf = rows < nleaf
+    li = rows[leaf]
+    if is_ls:
+        bits = (ref["leaf"][li][:, :, None] >> np.arange(64, dtype=np.uint64)) & np.uint64(1)
+        out[leaf] = bits.reshape(len(li), 512)
+    else:
+        out[leaf] = ref["leaf"][li]
+    out[~leaf] = ref["tile"][rows[~leaf] - nleaf][:, None]
+    return out
 
 
 def cell_keys(cells):
@@ -251,16 +366,23 @@ def cell_keys(cells):
     return ((cells[:, 0] + _OFF) << 42) | ((cells[:, 1] + _OFF) << 21) | (cells[:, 2] + _OFF)
 
 
-def cell_table(grid, gset):
-    """The evaluation cells, sorted by key: origins, masks, reference per voxel, weights (big tiles
-    count (edge/8)^3), keys, and whether the grid is a level set. Depends on the grid and on the
-    set's level-set band option only, so an adaptive build computes it once."""
+def cell_index(grid, gset):
+    """The evaluation cells, sorted by key: origins, masks, weights (big tiles count (edge/8)^3),
+    keys, whether the grid is a level set, and rows / ref (where the reference of each comes from,
+    for _cref)."""
     grid, _ = finite_grid(grid)  # the voxels build_lod kept: NaN/Inf ones are inactive there too
-    corg, cmask, cref, cw, is_ls = _cells(grid, gset)
+    corg, cmask, cw, is_ls, ref = _cells(grid, gset)
     keys = cell_keys(corg >> 3)
     srt = np.argsort(keys, kind="stable")
-    return dict(corg=corg[srt], cmask=cmask[srt], cref=cref[srt], cw=cw[srt], keys=keys[srt],
-                is_ls=is_ls)
+    return dict(corg=corg[srt], cmask=cmask[srt], cw=cw[srt], keys=keys[srt], is_ls=is_ls,
+                rows=srt, ref=ref)
+
+
+def cell_table(grid, gset):
+    """cell_index plus cref, the reference per voxel of every cell. Depends on the grid and on the
+    set's level-set band option only, so an adaptive build computes it once."""
+    t = cell_index(grid, gset)
+    return dict(t, cref=_cref(t["ref"], t["rows"], t["is_ls"]))
 
 
 def pair_lists(table, cent, sig, k=DEFAULT_K):
@@ -295,22 +417,187 @@ def nrmse_denominator(is_ls, vmin, vmax):
     return (vmax - vmin) or max(abs(vmin), abs(vmax)) or 1.0
 
 
-def _evaluate(grid, gset, k):
-    st = setup(grid, gset, k)
-    w = gset.values.astype(np.float64) * gset.amplitudes.astype(np.float64)
-    return st, _eval_cells(st["corg"], st["cmask"], st["cref"], st["cstart"], st["pg"], st["cent"],
-                           st["sig"], w, st["k"])
+@parallel_njit(cache=True)
+def _group_reach(origins, gstart, offsets, sig, k):
+    """Per group, the lowest and highest cell x (index >> 3) its Gaussians' k-sigma boxes reach,
+    computed as _cells_of does."""
+    ng = gstart.shape[0] - 1
+    lo = np.full(ng, np.iinfo(np.int64).max, np.int64)
+    hi = np.full(ng, np.iinfo(np.int64).min, np.int64)
+    for gi in prange(ng):
+        for j in range(gstart[gi], gstart[gi + 1]):
+            c = np.float64(origins[gi, 0]) + np.float64(offsets[j, 0])
+            r = k * np.float64(sig[j, 0])
+            lo[gi] = min(lo[gi], np.int64(np.ceil(c - r)) >> 3)
+            hi[gi] = max(hi[gi], np.int64(np.floor(c + r)) >> 3)
+    return lo, hi
 
 
-def cell_errors(grid, gset, k=DEFAULT_K):
+@njit(cache=True)
+def _by_cell(start, pc, ncell):
+    """Gaussian g's cells pc[start[g]:start[g + 1]] -> (cstart, pg): the pairs grouped by cell,
+    each cell's Gaussians in increasing order (a counting sort: stable, as argsort was)."""
+    cstart = np.zeros(ncell + 1, np.int64)
+    for p in range(pc.shape[0]):
+        cstart[pc[p] + 1] += 1
+    for c in range(ncell):
+        cstart[c + 1] += cstart[c]
+    pos = cstart[:-1].copy()
+    pg = np.empty(pc.shape[0], np.int32)
+    for g in range(start.shape[0] - 1):
+        for p in range(start[g], start[g + 1]):
+            c = pc[p]
+            pg[pos[c]] = g
+            pos[c] += 1
+    return cstart, pg
+
+
+@njit(cache=True)
+def distinct_sigmas(sig, most=64):
+    """The distinct values of sig (float32 (m, 3)) as float64, and False past ``most`` of them."""
+    u = np.empty(most)
+    n = 0
+    for g in range(sig.shape[0]):
+        for a in range(3):
+            v = np.float64(sig[g, a])
+            j = 0
+            while j < n and u[j] != v:
+                j += 1
+            if j == n:
+                if n == most:
+                    return u[:n], False
+                u[n] = v
+                n += 1
+    return u[:n], True
+
+
+@parallel_njit(cache=True)
+def _gather(grp, gstart, origins, offsets, sigmas, values, amps, u):
+    """Centres and sigmas (float64, as GaussianSet.centers() and setup make them) and weights
+    of the Gaussians of groups grp, in order; with u (the set's distinct sigmas) also their
+    doubled centres (int64) and sigma ids for the axis tables, and whether every centre is on
+    the half-voxel lattice."""
+    ng = grp.shape[0]
+    first = np.zeros(ng + 1, np.int64)
+    for i in range(ng):
+        first[i + 1] = first[i] + gstart[grp[i] + 1] - gstart[grp[i]]
+    m = first[ng]
+    cent = np.empty((m, 3))
+    sig = np.empty((m, 3))
+    w = np.empty(m)
+    c2 = np.zeros((m, 3), np.int64)
+    sid = np.zeros((m, 3), np.int32)
+    off = np.zeros(ng, np.bool_)
+    for i in prange(ng):
+        gi = grp[i]
+        for j in range(gstart[gi], gstart[gi + 1]):
+            o = first[i] + j - gstart[gi]
+            w[o] = np.float64(values[j]) * np.float64(amps[j])
+            for a in range(3):
+                c = np.float64(origins[gi, a]) + np.float64(offsets[j, a])
+                s = np.float64(sigmas[j, a])
+                cent[o, a] = c
+                sig[o, a] = s
+                h = np.rint(2.0 * c)
+                if h != 2.0 * c or abs(h) >= 2.0 ** 52:
+                    off[i] = True
+                else:
+                    c2[o, a] = np.int64(h)
+                t = 0
+                while t < u.shape[0] - 1 and u[t] != s:
+                    t += 1
+                sid[o, a] = t
+    return cent, sig, w, c2, sid, not off.any()
+
+
+class _Reach:
+    """Which Gaussians a run of cells (contiguous in key order, so in cell x) can meet. Leaf
+    groups are sorted by origin: the running maximum of their reach's high end and the running
+    minimum from the back of its low end are monotonic, so two binary searches bound the leaf
+    Gaussians; tile groups (few, any size) are tested one by one."""
+
+    def __init__(self, gset, k):
+        self.gs, gstart, nl = gset, gset.group_start, gset.n_leaf_groups
+        self.origins = np.asarray(gset.group_origins).reshape(-1, 3)
+        lo, hi = _group_reach(self.origins, gstart, gset.offsets, gset.sigmas, float(k))
+        self.pmax = np.maximum.accumulate(hi[:nl])
+        self.smin = np.minimum.accumulate(lo[:nl][::-1])[::-1]
+        self.tlo, self.thi, self.nl = lo[nl:], hi[nl:], nl
+        self.u, few = distinct_sigmas(gset.sigmas)
+        self.tables = axis_tables(self.u, k) if few and len(self.u) else None
+
+    def geometry(self, xa, xb):
+        """The Gaussians whose boxes reach cell x in [xa, xb], in increasing index order (so each
+        cell sums them in the set's order): (centres, sigmas, weights, axis-table arguments of
+        _eval_cells)."""
+        g = self.gs
+        g0 = int(np.searchsorted(self.pmax, xa, "left"))
+        g1 = max(g0, int(np.searchsorted(self.smin, xb, "right")))
+        tsel = np.flatnonzero((self.thi >= xa) & (self.tlo <= xb)) + self.nl
+        grp = np.concatenate([np.arange(g0, g1, dtype=np.int64), tsel])
+        u = self.u if len(self.u) else np.zeros(1)
+        cent, sig, w, c2, sid, lattice = _gather(grp, g.group_start, self.origins, g.offsets,
+                                                 g.sigmas, g.values, g.amplitudes, u)
+        if lattice and self.tables is not None:
+            return cent, sig, w, (c2, sid, *self.tables)
+        return cent, sig, w, _NO_TABLES
+
+
+_NO_TABLES = (np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int32), np.zeros((0, 0)),
+              np.zeros((0, 0)), -1)
+
+
+LUT_CELLS = 1 << 22  # a chunk's dense cell box (int32) up to 16 MB
+DEFAULT_CHUNK = 8192  # cells per evaluation chunk: ~500 pairs each at High, ~100 MB with its Gaussians
+
+
+def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK):
+    """The per-cell figures of _eval_cells over every cell (sorted by key), a chunk of cells at a
+    time: each chunk lists only its own pairs, with its Gaussians in the set's order, so every
+    cell sums the same terms in the same order as one list over all cells would."""
+    t = cell_index(grid, gset)
+    nc, kk = len(t["keys"]), float(k)
+    out = [np.zeros(nc) for _ in range(5)]
+    reach = _Reach(gset, kk)
+    pairs = 0
+    for a in range(0, nc, max(1, int(chunk))):
+        b = min(nc, a + max(1, int(chunk)))
+        keys, corg = t["keys"][a:b], t["corg"][a:b]
+        cent, sig, w, tab = reach.geometry(corg[0, 0] >> 3, corg[-1, 0] >> 3)
+        lmin = corg.min(0) >> 3
+        dims = (corg.max(0) >> 3) - lmin + 1
+        if np.prod(dims) <= LUT_CELLS:  # the chunk's cells in a dense box
+            lut = np.full(tuple(dims), -1, np.int32)
+            rel = (corg >> 3) - lmin
+            lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(b - a, dtype=np.int32)
+            start, pc = _lut_pairs(cent, sig, kk, lut, lmin)
+        else:  # scattered cells: binary searches in their keys
+            cnt = _count_pairs(cent, sig, kk, keys, corg)
+            start = np.zeros(len(cnt) + 1, np.int64)
+            np.cumsum(cnt, out=start[1:])
+            pc = np.empty(int(start[-1]), np.int32)
+            _fill_pairs(cent, sig, kk, keys, corg, start, pc)
+        cstart, pg = _by_cell(start, pc, b - a)
+        del pc
+        pairs += len(pg)
+        cref = _cref(t["ref"], t["rows"][a:b], t["is_ls"])
+        res = _eval_cells(corg, t["cmask"][a:b], cref, cstart, pg, cent, sig, w, kk, *tab)
+        for o, r in zip(out, res):
+            o[a:b] = r
+    return dict(t, pairs=pairs, k=kk), out
+
+
+def cell_errors(grid, gset, k=DEFAULT_K, chunk=DEFAULT_CHUNK):
     """Per evaluation cell, sorted by key: (keys, summed squared residual, active voxels)."""
-    st, (sse, _, npts, _, _) = _evaluate(grid, gset, k)
+    st, (sse, _, npts, _, _) = _evaluate(grid, gset, k, chunk)
     return st["keys"], sse, npts
 
 
-def field_error(grid, gset, k=DEFAULT_K) -> dict:
+def field_error(grid, gset, k=DEFAULT_K, chunk=DEFAULT_CHUNK) -> dict:
+    """The error figures; ``chunk``: cells evaluated at a time (bounds the memory; any value
+    gives the same figures)."""
     t0 = time.perf_counter()
-    st, (sse, mx, npts, inter, union) = _evaluate(grid, gset, k)
+    st, (sse, mx, npts, inter, union) = _evaluate(grid, gset, k, chunk)
     cw, is_ls, kk = st["cw"], st["is_ls"], st["k"]
     n = float(np.sum(npts * cw))
     rmse = float(np.sqrt(np.sum(sse * cw) / n)) if n else 0.0
@@ -320,7 +607,7 @@ def field_error(grid, gset, k=DEFAULT_K) -> dict:
     den = nrmse_denominator(is_ls, vmin, vmax)
     out = dict(rmse=rmse, nrmse=rmse / den, max_abs=float(mx.max()) if len(mx) else 0.0,
                nrmse_denominator=float(den), points=int(n), k_sigma=kk,
-               pairs=int(len(st["pg"])), seconds=time.perf_counter() - t0)
+               pairs=int(st["pairs"]), seconds=time.perf_counter() - t0)
     if is_ls:
         it, un = float(np.sum(inter * cw)), float(np.sum(union * cw))
         out.update(surface_iou=it / un if un else 1.0, surface_mismatch=(un - it) / n if n else 0.0,
