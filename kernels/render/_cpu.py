@@ -275,7 +275,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
                 return p
         if st[HIT] == HIT_NORMAL:
             mixture_normal(st, ro, rd, accel.node_min, accel.node_dims, accel.node_off, accel.node_table,
-                           accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec)
+                           accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec, gauss.cw,
+                           objs.sdf[int(st[HIT_OB])])
         if st[HIT] > 0.0:
             shade_hit(st, w2i[int(st[HIT_OB])], xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
         Tr = st[TR]

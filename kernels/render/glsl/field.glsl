@@ -2,15 +2,17 @@
  * its screen tile's Gaussians in list order and samples the summed field at the midpoints
  * t_i = (i + 1/2) h (h: the finest object step along the ray) once every chord entering before
  * t_i is known. Each active chord's value is evaluated at the sample (the CPU carries it by two
- * multiplications; the same value). Surfaces (object kind 2): the mixture's first rise through
- * 0.5 between samples, placed by the secant; the normal from the Gaussians around the hit
+ * multiplications; the same value). Surfaces (object kind 2): the first crossing between samples
+ * (field_crossing: with signed distances, the zero of their normalised mixture; else the 0.5
+ * occupancy), placed by the secant; the normal from the Gaussians around the hit
  * (mixture_normal). Entries wait in PCAP slots, active chords in PCAP more; a ray that needs
  * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. */
 #define NORMAL_BLUR 1.0
 #define NORMAL_REACH 4.0
+#define SDF_OCCUPANCY 0.25
 
 float f_e[PCAP], f_ts[PCAP], f_hq[PCAP], f_ha[PCAP];  /* waiting entries, by slot */
-float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP];  /* active chords */
+float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP], a_c[PCAP];  /* active chords */
 int a_ob[PCAP];
 int nact, isamp;
 float hstep, f_cend;
@@ -26,6 +28,31 @@ void mixture_hit(inout State st, int ob, float th, float ti, float sig, vec3 col
     composite(st, sig * (th - t0), col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0, t0, th);
   }
   surface_hit(st, ob, th, vec3(0.0), g_ro[ob] + th * g_rd[ob]);
+}
+
+bool obj_sdf(int ob) { return obj_texel(ob, 9).w > 0.5; }  /* packing.Objects.sdf */
+
+/* object ob's surface between samples isamp - 1 and isamp at ti, or INF (_cpu_surface.field_crossing:
+ * sdf, where S = nv / sv falls through 0 while sv >= SDF_OCCUPANCY; else where sv rises through 0.5).
+ * sprev_i: the last sample recorded, -1e9 for one outside the shell. */
+float field_crossing(int ob, float ti, float sv, float nv, bool sdf)
+{
+  bool adjacent = sprev_i[ob] == isamp - 1;
+  float prev = sprev_v[ob];
+  if (!sdf) {
+    prev = adjacent ? prev : 0.0; /* none active: 0 */
+    sprev_v[ob] = sv;
+    sprev_i[ob] = isamp;
+    return sv >= 0.5 && prev < 0.5 ? ti - hstep + (0.5 - prev) / (sv - prev) * hstep : INF;
+  }
+  bool inside = sv >= SDF_OCCUPANCY;
+  float f = inside ? nv / sv : 0.0;
+  sprev_v[ob] = f;
+  sprev_i[ob] = inside ? isamp : -1000000000;
+  if (!inside || f > 0.0) {
+    return INF;
+  }
+  return adjacent && prev > 0.0 ? ti - hstep + prev / (prev - f) * hstep : ti;
 }
 
 /* The samples before horizon (see the file's comment). True once the ray ends (opaque, a
@@ -50,6 +77,7 @@ bool sweep_field(inout State st, float horizon)
       a_ha[nact] = f_ha[h];
       Gauss G = gauss_at(g);
       a_w[nact] = G.w;
+      a_c[nact] = G.val; /* the signed-distance weight (gpu_layout_gauss.gauss_tables) */
       a_ob[nact] = n_obj == 1 ? 0 : G.ob;
       nact++;
       f_cend = max(f_cend, f_e[h]);
@@ -68,10 +96,11 @@ bool sweep_field(inout State st, float horizon)
       isamp = max(isamp + 1, int(ceil(q_t[q0] / hstep - 0.5)));
       continue;
     }
-    float sv[MAX_OBJ];
+    float sv[MAX_OBJ], nv[MAX_OBJ];
     bool sact[MAX_OBJ];
     for (int ob = 0; ob < n_obj; ob++) {
       sv[ob] = 0.0;
+      nv[ob] = 0.0;
       sact[ob] = false;
     }
     int k = 0;
@@ -83,11 +112,14 @@ bool sweep_field(inout State st, float horizon)
         a_hq[k] = a_hq[nact];
         a_ha[k] = a_ha[nact];
         a_w[k] = a_w[nact];
+        a_c[k] = a_c[nact];
         a_ob[k] = a_ob[nact];
         continue;
       }
       float d = ti - a_ts[k];
-      sv[a_ob[k]] += a_w[k] * exp(-(a_hq[k] + a_ha[k] * d * d));
+      float e = exp(-(a_hq[k] + a_ha[k] * d * d));
+      sv[a_ob[k]] += a_w[k] * e;
+      nv[a_ob[k]] += a_c[k] * e;
       sact[a_ob[k]] = true;
       k++;
     }
@@ -103,15 +135,10 @@ bool sweep_field(inout State st, float horizon)
       }
       int kind = int(obj_texel(ob, 3).x);
       if (kind == 2) {
-        float prev = sprev_i[ob] == isamp - 1 ? sprev_v[ob] : 0.0; /* none active: 0 */
-        sprev_v[ob] = sv[ob];
-        sprev_i[ob] = isamp;
-        if (sv[ob] >= 0.5 && prev < 0.5) {
-          float th = ti - hstep + (0.5 - prev) / (sv[ob] - prev) * hstep;
-          if (th < bt) {
-            bt = th;
-            best = ob;
-          }
+        float th = field_crossing(ob, ti, sv[ob], nv[ob], obj_sdf(ob));
+        if (th < bt) {
+          bt = th;
+          best = ob;
         }
         continue;
       }
@@ -143,10 +170,15 @@ bool sweep_field(inout State st, float horizon)
   return false;
 }
 
-/* -gradient of the hit object's mixture blurred by NORMAL_BLUR, from the Gaussians centred in the
- * leaf cells within NORMAL_REACH of the hit (_cpu_surface.mixture_normal) */
+/* the outward normal from the Gaussians centred in the leaf cells within NORMAL_REACH of the hit
+ * (_cpu_surface.mixture_normal): with signed distances, the gradient of their weighted
+ * least-squares linear fit; else -gradient of the mixture blurred by NORMAL_BLUR */
 void mixture_normal(inout State st)
 {
+  bool sdf = obj_sdf(st.hit_ob);
+  float s0 = 0.0, d0 = 0.0;
+  vec3 s1 = vec3(0.0), d1 = vec3(0.0);
+  mat3 s2 = mat3(0.0);
   int ob = st.hit_ob;
   vec3 x = g_ro[ob] + st.hit_t * g_rd[ob];
   ivec3 lo = ivec3(floor((x + 0.5 - NORMAL_REACH) / LEAF));
@@ -177,6 +209,20 @@ void mixture_normal(inout State st)
             continue; /* counted in the cell of its centre */
           }
           vec3 iv = G.iv;
+          if (sdf) { /* the fit's sums, about the hit */
+            vec3 u = G.mu - x;
+            float qf = dot(u * iv, u * iv);
+            if (qf > 16.0) {
+              continue;
+            }
+            float e = exp(-0.5 * qf), ew = G.w * e;
+            s0 += ew;
+            s1 += ew * u;
+            s2 += ew * outerProduct(u, u);
+            d0 += G.val * e;
+            d1 += G.val * e * u;
+            continue;
+          }
           vec3 ib = 1.0 / sqrt(1.0 / (iv * iv) + NORMAL_BLUR);
           vec3 u = (x - G.mu) * ib;
           float q = dot(u, u);
@@ -188,6 +234,13 @@ void mixture_normal(inout State st)
         }
       }
     }
+  }
+  if (sdf && s0 > 0.0) { /* _cpu_surface.fit_gradient */
+    vec3 m = s1 / s0;
+    mat3 c = s2 / s0 - outerProduct(m, m);
+    vec3 b = d1 / s0 - m * (d0 / s0);
+    float tr = c[0][0] + c[1][1] + c[2][2];
+    grad = determinant(c) > 1e-9 * tr * tr * tr ? inverse(c) * b : b;
   }
   st.hit_g = grad;
 }
