@@ -299,13 +299,14 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
         best = -1
         bt = INF
         for ob in range(n_obj):
-            if sact[ob] == 0:
-                continue
-            if obj_kind[ob] == 2:
-                th = field_crossing(sprev, ob, isamp, ti, hstep, svals[ob], cvals[ob], objs.sdf[ob])
+            if obj_kind[ob] == 2:  # at every sample: a passage through the shell may end here
+                th = field_crossing(sprev, ob, isamp, ti, hstep, svals[ob], cvals[ob], objs.sdf[ob],
+                                    objs.cbg[ob])
                 if th < bt:
                     bt = th
                     best = ob
+                continue
+            if sact[ob] == 0:
                 continue
             x = ro[ob, 0] + ti * rd[ob, 0]
             y = ro[ob, 1] + ti * rd[ob, 1]

@@ -5,11 +5,12 @@ the hit (mixture_normal).
 
 Field mode, Gaussians with signed distances d_i (GaussianSet.distances, Objects.sdf): the surface
 is the zero of the normalised signed mixture S(x) = sum_i w_i(x) d_i / sum_i w_i(x), trusted where
-the occupancy sum_i w_i(x) >= SDF_OCCUPANCY (inside the shell), and its normal the gradient of the
-linear fit d ~ a + g.(x - mu) to the Gaussians' distances weighted by w_i(x) at the hit (moving
-least squares: grad S itself follows the jagged shell of voxels, up to 20 degrees off on a
-sphere; the fit is within 0.5). Without distances (older files): the 0.5 occupancy, normal from
-the blurred occupancy's gradient."""
+the occupancy sum_i w_i(x) >= SDF_OCCUPANCY (inside the shell); where the band kept one layer of
+voxels S stays just above 0 through it, and such a passage is the hit (field_crossing). The
+normal is the gradient of the linear fit d ~ a + g.(x - mu) to the Gaussians' distances weighted
+by w_i(x) at the hit (moving least squares: grad S itself follows the jagged shell of voxels, up
+to 20 degrees off on a sphere; the fit is within 0.6). Without distances (older files): the 0.5
+occupancy, normal from the blurred occupancy's gradient."""
 from __future__ import annotations
 
 import math
@@ -208,11 +209,14 @@ NORMAL_REACH = 4.0  # voxels around the hit searched for Gaussians
 
 
 @njit(**_hot, inline="always")
-def field_crossing(sprev, ob, isamp, ti, hstep, sv, nv, sdf):
-    """Object ob's surface between samples isamp - 1 and isamp (at ti, hstep apart), placed by the
-    secant, or INF. sdf: where S = nv / sv (nv = sum_i w_i d_i) falls through 0 while the
-    occupancy sv >= SDF_OCCUPANCY (a first such sample already <= 0: the hit is there); else where
-    sv rises through 0.5. Records the sample's level and index in sprev[ob]."""
+def field_crossing(sprev, ob, isamp, ti, hstep, sv, nv, sdf, level):
+    """Object ob's surface between samples isamp - 1 and isamp (at ti, hstep apart), or INF.
+    sdf: where S = nv / sv (nv = sum_i w_i d_i) falls through 0 while the occupancy sv >=
+    SDF_OCCUPANCY (placed by the secant; a first such sample already <= 0: there); a passage
+    through the shell that ends without it, its mean S (occupancy-weighted) below level (a single
+    layer of voxels, see levelset.SURFACE_LEVEL): the passage's occupancy-weighted centre. Else
+    where sv rises through 0.5 (by the secant). sprev[ob]: the last sample's level and index; the
+    passage's sums of sv, sv t and nv."""
     adjacent = sprev[ob, 1] == isamp - 1
     if sdf == 0:
         prev = sprev[ob, 0] if adjacent else 0.0  # none active: 0
@@ -220,12 +224,18 @@ def field_crossing(sprev, ob, isamp, ti, hstep, sv, nv, sdf):
         if sv >= 0.5 and prev < 0.5:
             return ti - hstep + (0.5 - prev) / (sv - prev) * hstep
         return INF
-    f = nv / sv if sv >= SDF_OCCUPANCY else np.nan
-    prev = sprev[ob, 0] if adjacent else np.nan
+    prev = sprev[ob, 0] if adjacent else np.nan  # NaN: not in a passage
+    if sv < SDF_OCCUPANCY:
+        sprev[ob, 0], sprev[ob, 1] = np.nan, isamp
+        return sprev[ob, 3] / sprev[ob, 2] if prev == prev and sprev[ob, 4] < level * sprev[ob, 2] else INF
+    f = nv / sv
     sprev[ob, 0], sprev[ob, 1] = f, isamp
-    if not f <= 0.0:
-        return INF
-    return ti - hstep + prev / (prev - f) * hstep if prev > 0.0 else ti
+    if f <= 0.0:
+        return ti - hstep + prev / (prev - f) * hstep if prev > 0.0 else ti
+    if prev != prev:  # a passage begins
+        sprev[ob, 2], sprev[ob, 3], sprev[ob, 4] = 0.0, 0.0, 0.0
+    sprev[ob, 2], sprev[ob, 3], sprev[ob, 4] = sprev[ob, 2] + sv, sprev[ob, 3] + sv * ti, sprev[ob, 4] + nv
+    return INF
 
 
 @njit(**_hot)

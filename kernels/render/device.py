@@ -223,10 +223,10 @@ class CPUDevice(Device):
         return w, col
 
     def _color_weights(self, objects):
-        """The second mixture's field weights ((second value - its background) x amplitude): the
-        volumes' coloured by a grid (that mixture is the grid's background where no Gaussian is,
-        as the reference mode's voxels are), the surfaces' with signed distances (Objects.sdf);
-        zero elsewhere; None when no object has one."""
+        """The second mixture's field weights (second value x amplitude): the volumes' coloured
+        by a grid (less its background, objects.cbg: that mixture is the background where no
+        Gaussian is, as the reference mode's voxels are), the surfaces' signed distances
+        (Objects.sdf); zero elsewhere; None when no object has one."""
         sel = np.flatnonzero((objects.ctf >= 0) | (objects.sdf != 0))
         if not sel.size:
             return None
@@ -234,9 +234,8 @@ class CPUDevice(Device):
         cw = np.zeros(A.g_val.shape[0])
         for k in sel:
             s = slice(A.g_first[k], A.g_first[k + 1])
-            bg = float(getattr(self._objects[k].gaussians, "color_background", 0.0) or 0.0)
             cv = A.g_cval[s]
-            cw[s] = np.where(np.isnan(cv), 0.0, cv - bg) * A.g_amp[s]
+            cw[s] = np.where(np.isnan(cv), 0.0, cv - objects.cbg[k] * (objects.ctf[k] >= 0)) * A.g_amp[s]
         return cw
 
     def _cell_skip(self, mode, acc, w, tfs, obj_tf, obj_kind):

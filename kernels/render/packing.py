@@ -12,6 +12,7 @@ from collections import namedtuple
 
 import numpy as np
 
+from ..lod.levelset import surface_level
 from . import clip, lights
 
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
@@ -31,8 +32,8 @@ Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi
 # towards each light at each grid point, light fastest; _cpu_lit) and, for a volume coloured by a
 # second grid, its colour map's transfer-function row (-1: coloured by its own values) and that
 # grid's background (its value where no Gaussian is: the field adds it to the colour mixture);
-# sdf: 1 for a surface whose Gaussians carry signed distances (the field finds the zero of their
-# normalised mixture, carried as the colour mixture is: _cpu_surface.field_crossing).
+# sdf: 1 for a surface whose Gaussians carry signed distances (their mixture is carried as the
+# colour mixture is; cbg: its single-layer level, levelset.surface_level: _cpu_surface.field_crossing).
 Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf cbg sdf")
 LIT, LIT_SHADOWS = 1, 2
 # Acceleration: the leaf hierarchy (node grids, node -> cell tables: per object its leaves, then
@@ -143,6 +144,8 @@ def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=
         if ctf[k] >= 0:
             cbg[k] = float(getattr(o.gaussians, "color_background", 0.0) or 0.0)
         sdf[k] = kind[k] == 2 and getattr(o.gaussians, "distances", None) is not None
+        if sdf[k]:
+            cbg[k] = surface_level(o.gaussians.index_to_world)
     return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n), ctf,
                    cbg, sdf)
 

@@ -4,7 +4,7 @@
  * t_i is known. Each active chord's value is evaluated at the sample (the CPU carries it by two
  * multiplications; the same value). Surfaces (object kind 2): the first crossing between samples
  * (field_crossing: with signed distances, the zero of their normalised mixture; else the 0.5
- * occupancy), placed by the secant; the normal from the Gaussians around the hit
+ * occupancy); the normal from the Gaussians around the hit
  * (mixture_normal). Entries wait in PCAP slots, active chords in PCAP more; a ray that needs
  * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. */
 #define NORMAL_BLUR 1.0
@@ -16,7 +16,7 @@ float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP], a_c[PCAP];  /* a
 int a_ob[PCAP];
 int nact, isamp;
 float hstep, f_cend;
-float sprev_v[MAX_OBJ];
+float sprev_v[MAX_OBJ], sprev_w[MAX_OBJ], sprev_t[MAX_OBJ], sprev_n[MAX_OBJ];
 int sprev_i[MAX_OBJ];
 bool f_over;
 
@@ -30,29 +30,43 @@ void mixture_hit(inout State st, int ob, float th, float ti, float sig, vec3 col
   surface_hit(st, ob, th, vec3(0.0), g_ro[ob] + th * g_rd[ob]);
 }
 
-bool obj_sdf(int ob) { return obj_texel(ob, 9).w > 0.5; }  /* packing.Objects.sdf */
+/* a signed-distance surface's single-layer level (gpu_layout.object_rows), 0 for none */
+float obj_level(int ob) { return obj_texel(ob, 9).w; }
 
 /* object ob's surface between samples isamp - 1 and isamp at ti, or INF (_cpu_surface.field_crossing:
- * sdf, where S = nv / sv falls through 0 while sv >= SDF_OCCUPANCY; else where sv rises through 0.5).
- * sprev_i: the last sample recorded, -1e9 for one outside the shell. */
-float field_crossing(int ob, float ti, float sv, float nv, bool sdf)
+ * level > 0, where S = nv / sv falls through 0 while sv >= SDF_OCCUPANCY, or the occupancy-weighted
+ * centre of a passage through the shell that ends without it, its mean S below level; else where
+ * sv rises through 0.5). sprev_i: the last sample, -1e9 for one outside the shell; the passage's
+ * sums of sv (sprev_w), sv t (sprev_t) and nv (sprev_n). */
+float field_crossing(int ob, float ti, float sv, float nv, float level)
 {
   bool adjacent = sprev_i[ob] == isamp - 1;
   float prev = sprev_v[ob];
-  if (!sdf) {
+  if (!(level > 0.0)) {
     prev = adjacent ? prev : 0.0; /* none active: 0 */
     sprev_v[ob] = sv;
     sprev_i[ob] = isamp;
     return sv >= 0.5 && prev < 0.5 ? ti - hstep + (0.5 - prev) / (sv - prev) * hstep : INF;
   }
-  bool inside = sv >= SDF_OCCUPANCY;
-  float f = inside ? nv / sv : 0.0;
-  sprev_v[ob] = f;
-  sprev_i[ob] = inside ? isamp : -1000000000;
-  if (!inside || f > 0.0) {
-    return INF;
+  if (sv < SDF_OCCUPANCY) {
+    sprev_i[ob] = -1000000000;
+    return adjacent && sprev_n[ob] < level * sprev_w[ob] ? sprev_t[ob] / sprev_w[ob] : INF;
   }
-  return adjacent && prev > 0.0 ? ti - hstep + prev / (prev - f) * hstep : ti;
+  float f = nv / sv;
+  sprev_v[ob] = f;
+  sprev_i[ob] = isamp;
+  if (f <= 0.0) {
+    return adjacent && prev > 0.0 ? ti - hstep + prev / (prev - f) * hstep : ti;
+  }
+  if (!adjacent) { /* a passage begins */
+    sprev_w[ob] = 0.0;
+    sprev_t[ob] = 0.0;
+    sprev_n[ob] = 0.0;
+  }
+  sprev_w[ob] += sv;
+  sprev_t[ob] += sv * ti;
+  sprev_n[ob] += nv;
+  return INF;
 }
 
 /* The samples before horizon (see the file's comment). True once the ray ends (opaque, a
@@ -130,12 +144,12 @@ bool sweep_field(inout State st, float horizon)
     vec3 col = vec3(0.0);
     int best = -1;
     for (int ob = 0; ob < n_obj; ob++) {
-      if (!sact[ob]) {
+      int kind = int(obj_texel(ob, 3).x);
+      if (!sact[ob] && kind != 2) { /* surfaces at every sample: a passage may end here */
         continue;
       }
-      int kind = int(obj_texel(ob, 3).x);
       if (kind == 2) {
-        float th = field_crossing(ob, ti, sv[ob], nv[ob], obj_sdf(ob));
+        float th = field_crossing(ob, ti, sv[ob], nv[ob], obj_level(ob));
         if (th < bt) {
           bt = th;
           best = ob;
@@ -175,7 +189,7 @@ bool sweep_field(inout State st, float horizon)
  * least-squares linear fit; else -gradient of the mixture blurred by NORMAL_BLUR */
 void mixture_normal(inout State st)
 {
-  bool sdf = obj_sdf(st.hit_ob);
+  bool sdf = obj_level(st.hit_ob) > 0.0;
   float s0 = 0.0, d0 = 0.0;
   vec3 s1 = vec3(0.0), d1 = vec3(0.0);
   mat3 s2 = mat3(0.0);
