@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
+from ..lod.levelset import SURFACE_LEVEL
 from ._cpu_chords import NF, OVERFLOW
 from ._cpu_gauss import NB, trace_gauss, trace_tiles
 from ._cpu_math import (
@@ -276,7 +277,7 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
         if st[HIT] == HIT_NORMAL:
             mixture_normal(st, ro, rd, accel.node_min, accel.node_dims, accel.node_off, accel.node_table,
                            accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec, gauss.cw,
-                           objs.sdf[int(st[HIT_OB])])
+                           objs.sdf[int(st[HIT_OB])], objs.cbg[int(st[HIT_OB])] / SURFACE_LEVEL)
         if st[HIT] > 0.0:
             shade_hit(st, w2i[int(st[HIT_OB])], xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
         Tr = st[TR]

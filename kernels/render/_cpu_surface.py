@@ -255,10 +255,12 @@ def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
 
 
 @njit(**_hot, inline="always")
-def fit_gradient(s0, s1, s2, s3, sxx, sxy, sxz, syy, syz, szz, d0, d1, d2, d3):
+def fit_gradient(s0, s1, s2, s3, sxx, sxy, sxz, syy, syz, szz, d0, d1, d2, d3, slope):
     """The slope g of the weighted least-squares fit d ~ a + g.u from the sums of w (s0), w u
-    (s1..s3), w u u^T (sxx..szz), w d (d0) and w d u (d1..d3); the covariance of d and u where
-    the points' covariance is singular."""
+    (s1..s3), w u u^T (sxx..szz), w d (d0) and w d u (d1..d3). Where the fit's |g| falls short of
+    half a signed distance's slope (the voxel's size): the points lie in one layer, which leaves
+    g across it undetermined; the layer's normal then (the adjugate's longest column: the
+    covariance's least axis; any sign, shade_hit turns it to the viewer)."""
     mx, my, mz, dm = s1 / s0, s2 / s0, s3 / s0, d0 / s0
     cxx, cxy, cxz = sxx / s0 - mx * mx, sxy / s0 - mx * my, sxz / s0 - mx * mz
     cyy, cyz, czz = syy / s0 - my * my, syz / s0 - my * mz, szz / s0 - mz * mz
@@ -267,19 +269,26 @@ def fit_gradient(s0, s1, s2, s3, sxx, sxy, sxz, syy, syz, szz, d0, d1, d2, d3):
     a11, a12, a22 = cxx * czz - cxz * cxz, cxy * cxz - cxx * cyz, cxx * cyy - cxy * cxy
     det = cxx * a00 + cxy * a01 + cxz * a02
     tr = cxx + cyy + czz
-    if not det > 1e-9 * tr * tr * tr:
-        return bx, by, bz
-    return ((a00 * bx + a01 * by + a02 * bz) / det, (a01 * bx + a11 * by + a12 * bz) / det,
-            (a02 * bx + a12 * by + a22 * bz) / det)
+    if det > 1e-9 * tr * tr * tr:
+        gx = (a00 * bx + a01 * by + a02 * bz) / det
+        gy = (a01 * bx + a11 * by + a12 * bz) / det
+        gz = (a02 * bx + a12 * by + a22 * bz) / det
+        if gx * gx + gy * gy + gz * gz >= 0.25 * slope * slope:
+            return gx, gy, gz
+    n0, n1, n2 = a00 * a00 + a01 * a01 + a02 * a02, a01 * a01 + a11 * a11 + a12 * a12, a02 * a02 + a12 * a12 + a22 * a22
+    if n0 >= n1 and n0 >= n2:
+        return a00, a01, a02
+    return (a01, a11, a12) if n1 >= n2 else (a02, a12, a22)
 
 
 @njit(**_hot)
 def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_start, cell_items,
-                   g_rec, g_cw, sdf):
+                   g_rec, g_cw, sdf, slope):
     """The outward normal at a field-mode surface hit (st, see surface_hit) from the Gaussians
     centred in the leaf cells within NORMAL_REACH of the hit (each is listed in the cell of its
     centre, among others). sdf (the Gaussians' signed distance x weight in g_cw): the fit's
-    gradient (fit_gradient; see the module doc); else -grad of the mixture blurred by a Gaussian
+    gradient (fit_gradient; slope: a distance's change per voxel, the voxel's size; see the
+    module doc); else -grad of the mixture blurred by a Gaussian
     of variance NORMAL_BLUR (each sigma^2 grows by it), which evens out the lattice of
     voxel-sized Gaussians the shell is made of."""
     ob = int(st[HIT_OB])
@@ -345,7 +354,7 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
                     gy += e * uy * iy
                     gz += e * uz * iz
     if sdf and s0 > 0.0:
-        gx, gy, gz = fit_gradient(s0, s1, s2, s3, sxx, sxy, sxz, syy, syz, szz, d0, d1, d2, d3)
+        gx, gy, gz = fit_gradient(s0, s1, s2, s3, sxx, sxy, sxz, syy, syz, szz, d0, d1, d2, d3, slope)
     st[HIT_G] = gx
     st[HIT_G + 1] = gy
     st[HIT_G + 2] = gz

@@ -10,6 +10,7 @@
 #define NORMAL_BLUR 1.0
 #define NORMAL_REACH 4.0
 #define SDF_OCCUPANCY 0.25
+#define SURFACE_LEVEL 0.13397460  /* levelset.SURFACE_LEVEL: 1 - sqrt(3) / 2 */
 
 float f_e[PCAP], f_ts[PCAP], f_hq[PCAP], f_ha[PCAP];  /* waiting entries, by slot */
 float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP], a_c[PCAP];  /* active chords */
@@ -186,7 +187,7 @@ bool sweep_field(inout State st, float horizon)
 
 /* the outward normal from the Gaussians centred in the leaf cells within NORMAL_REACH of the hit
  * (_cpu_surface.mixture_normal): with signed distances, the gradient of their weighted
- * least-squares linear fit; else -gradient of the mixture blurred by NORMAL_BLUR */
+ * least-squares linear fit (fit_gradient); else -gradient of the mixture blurred by NORMAL_BLUR */
 void mixture_normal(inout State st)
 {
   bool sdf = obj_level(st.hit_ob) > 0.0;
@@ -253,8 +254,14 @@ void mixture_normal(inout State st)
     vec3 m = s1 / s0;
     mat3 c = s2 / s0 - outerProduct(m, m);
     vec3 b = d1 / s0 - m * (d0 / s0);
-    float tr = c[0][0] + c[1][1] + c[2][2];
-    grad = determinant(c) > 1e-9 * tr * tr * tr ? inverse(c) * b : b;
+    float tr = c[0][0] + c[1][1] + c[2][2], det = determinant(c);
+    vec3 a0 = cross(c[1], c[2]), a1 = cross(c[2], c[0]), a2 = cross(c[0], c[1]); /* adj(c) */
+    grad = det > 1e-9 * tr * tr * tr ? mat3(a0, a1, a2) * b / det : vec3(0.0);
+    float slope = obj_level(st.hit_ob) / SURFACE_LEVEL; /* one layer: the layer's normal */
+    if (dot(grad, grad) < 0.25 * slope * slope) {
+      float n0 = dot(a0, a0), n1 = dot(a1, a1), n2 = dot(a2, a2);
+      grad = n0 >= n1 && n0 >= n2 ? a0 : (n1 >= n2 ? a1 : a2);
+    }
   }
   st.hit_g = grad;
 }
