@@ -15,6 +15,8 @@ list, each LOD's Gaussians in the kernel's order (groups ascending). Point attri
   gs_voxels     INT           voxels the Gaussian represents
   gs_color      FLOAT         the colour grid's value at the Gaussian (only when imported with one:
                               ``gaussvdb.color_grid``; kernels/lod/second_grid.py)
+  gs_distance   FLOAT         level sets: the mean signed distance of the voxels the Gaussian
+                              stands for (GaussianSet.distances; absent in older files)
 
 The object's ``matrix_world`` is the grid's index-to-world transform (also stored exactly, as
 float64 text, in ``gaussvdb.index_to_world``); ``gaussvdb.stats_json`` holds the per-LOD figures
@@ -45,6 +47,7 @@ ATTRIBUTES = {  # name -> (Blender type, numpy dtype, components)
     "gs_amplitude": ("FLOAT", np.float32, 1),
     "gs_voxels": ("INT", np.int32, 1),
     "gs_color": ("FLOAT", np.float32, 1),
+    "gs_distance": ("FLOAT", np.float32, 1),
 }
 BLENDER_DTYPES = {"FLOAT": np.float32, "INT": np.int32, "INT8": np.int8, "BOOLEAN": bool}
 
@@ -63,6 +66,7 @@ def point_arrays(cg) -> dict:
     amps = np.empty(m, np.float32)
     vox = np.empty(m, np.int32)
     colors = np.empty(m, np.float32) if cg.color_grid else None
+    dist = np.empty(m, np.float32) if all(s.distances is not None for s in sets) else None
     at = 0
     for i, s in enumerate(sets):
         n = s.count
@@ -81,6 +85,8 @@ def point_arrays(cg) -> dict:
         vox[sl] = s.voxels
         if colors is not None:
             colors[sl] = s.color_values
+        if dist is not None:
+            dist[sl] = s.distances
         at += n
     out = {
         "position": ("FLOAT_VECTOR", centres, 3),
@@ -97,6 +103,8 @@ def point_arrays(cg) -> dict:
     out["gs_voxels"] = ("INT", vox, 1)
     if colors is not None:
         out["gs_color"] = ("FLOAT", colors, 1)
+    if dist is not None and cg.is_level_set:
+        out["gs_distance"] = ("FLOAT", dist, 1)
     return out
 
 
@@ -320,6 +328,7 @@ def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to
     amps = a["gs_amplitude"][sel].copy() if "gs_amplitude" in a else np.ones(m, np.float32)
     voxels = a["gs_voxels"][sel].copy() if "gs_voxels" in a else np.ones(m, np.int32)
     colors = a["gs_color"][sel].astype(np.float32) if "gs_color" in a else None
+    dist = a["gs_distance"][sel].astype(np.float32) if "gs_distance" in a else None
     name = names[idx] if idx < len(names) else fallback_name
     stats = next((s for s in stats if s.get("lod") == (names[idx] if idx < len(names) else None)), {})
     scale = float(stats.get("sigma_scale") or 0.0)
@@ -332,7 +341,8 @@ def gaussian_set_from_arrays(a, idx, names, stats, grid_class, weights, index_to
         voxels=voxels.astype(np.int32), grid_class=grid_class or "fog_volume", lod=name,
         weights=weights or "field", index_to_world=index_to_world,
         background=0.0, n_leaf_groups=int(stats.get("n_leaf_groups", len(group_origins))),
-        size_codes=codes, sigma_scale=scale or 0.6, params=params, color_values=colors)
+        size_codes=codes, sigma_scale=scale or 0.6, params=params, color_values=colors,
+        distances=dist)
 
 
 def converted_gaussian_set(cg):

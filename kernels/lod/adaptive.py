@@ -41,7 +41,7 @@ MARGIN = 0.98  # fit to 0.98 x the tolerance: the amplitude quantization (0.27 %
 
 
 @parallel_njit(cache=True)
-def node_boxes(kept, values, order, nleaf, nxyz, ne, level_set, c2, ext, nvox, val, nchild):
+def node_boxes(kept, values, order, nleaf, nxyz, ne, c2, ext, nvox, val, nchild):
     """Per node: bounding box of its kept voxels (c2 = lo + hi, ext = hi - lo + 1, local to the
     leaf), their count and mean value, and how many of its octants hold any (0 for e = 1)."""
     for j in prange(nleaf.shape[0]):
@@ -69,7 +69,7 @@ def node_boxes(kept, values, order, nleaf, nxyz, ne, level_set, c2, ext, nvox, v
         c2[j, 0], c2[j, 1], c2[j, 2] = lx + hx, ly + hy, lz + hz
         ext[j, 0], ext[j, 1], ext[j, 2] = hx - lx + 1, hy - ly + 1, hz - lz + 1
         nvox[j] = n
-        val[j] = 1.0 if level_set else (s / n if n else 0.0)
+        val[j] = s / n if n else 0.0
         k = 0
         for o in range(8):
             k += (octs >> o) & 1
@@ -97,13 +97,13 @@ def node_errors(nleaf, nxyz, ne, leaf_cell, cres):
     return sse, mx
 
 
-def _boxes(kept, values, order, nodes, is_ls):
+def _boxes(kept, values, order, nodes):
     nleaf, nxyz, ne = nodes
     m = len(nleaf)
     box = dict(c2=np.empty((m, 3), np.int16), ext=np.empty((m, 3), np.int16),
                nvox=np.empty(m, np.int32), val=np.empty(m, np.float32))
     nchild = np.empty(m, np.int64)
-    node_boxes(kept, values, order, nleaf, nxyz, ne, is_ls, box["c2"], box["ext"], box["nvox"],
+    node_boxes(kept, values, order, nleaf, nxyz, ne, box["c2"], box["ext"], box["nvox"],
                box["val"], nchild)
     box["kind"] = (box["nvox"] == np.prod(box["ext"].astype(np.int64), 1)).astype(np.uint8)
     return box, nchild
@@ -145,13 +145,14 @@ def _choose(node_sse, node_max, nchild, splittable, need, max_error):
 
 
 def _gaussians(box, tbox, nt, is_ls, scale):
-    """Boxes (leaf nodes, then tiles) -> the output arrays of weights.new_gaussians."""
+    """Boxes (leaf nodes, then tiles) -> the output arrays of weights.new_gaussians, and a level
+    set's signed distances (else None)."""
     if nt:
         box = {k: np.concatenate([box[k], tbox[k]]) for k in box}
     out = W.new_gaussians(len(box["nvox"]))
     W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["kind"],
-                         len(box["nvox"]) - nt, is_ls, False, scale, out, 0)
-    return out
+                         len(box["nvox"]) - nt, False, scale, out, 0)
+    return out, W.level_set_distances(out) if is_ls else None
 
 
 def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, max_error,
@@ -178,9 +179,9 @@ def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, ma
     rounds, hist = 0, []
     while True:
         rounds += 1
-        box, nchild = _boxes(kept, values, order, nodes, is_ls)
+        box, nchild = _boxes(kept, values, order, nodes)
         m = len(box["nvox"])
-        out = _gaussians(box, tbox, nt, is_ls, scale)
+        out, dist = _gaussians(box, tbox, nt, is_ls, scale)
         offsets, sig, vals = out[0], out[2], out[5]
         cent = np.concatenate([lo[nodes[0]], t_or.astype(np.int64)]) + offsets.astype(np.float64)
         vox = np.concatenate([box["nvox"].astype(np.float64),
@@ -203,7 +204,7 @@ def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, ma
         if not len(chosen):
             break  # only single voxels (and tiles) left where the error is
         nodes, f = _split(nodes, f, chosen)
-        nb, _ = _boxes(kept, values, order, nodes, is_ls)
+        nb, _ = _boxes(kept, values, order, nodes)
         nonempty = nb["nvox"] > 0
         nodes, f = _canonical(tuple(a[nonempty] for a in nodes), f[nonempty])
 
@@ -220,7 +221,7 @@ def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, ma
         values=vals, amplitudes=amp, voxels=vox, grid_class=grid.grid_class, lod="adaptive",
         weights="field", index_to_world=np.asarray(grid.index_to_world, np.float64),
         background=float(grid.background), n_leaf_groups=len(groups), size_codes=codes,
-        sigma_scale=scale, params=params)
+        sigma_scale=scale, params=params, distances=dist)
     a0 = W.amplitudes64(gs.sigmas, gs.true_voxels(), "field")
     gs.amplitudes = (a0 * W.factors_from_codes(W.quantize_factors(np.concatenate([f, f_tile]))))\
         .astype(np.float32)

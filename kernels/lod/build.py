@@ -145,7 +145,7 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
         if nt:
             box = {k: np.concatenate([box[k], tbox[k]]) for k in box}
             group = np.concatenate([group, n_leaf + np.arange(nt, dtype=np.int64)])
-        boxes = _Boxes(grid, origins, n_leaf, nt, is_ls, paper, scale, weights, params)
+        boxes = _Boxes(grid, origins, n_leaf, nt, paper, scale, weights, params)
         g_m, b_m, params["merged"], centres = clustering.merge_blocks(group, origins, n_leaf, box,
                                                                       vr, p["merge_tol"])
         if params["merged"] and p["merge_check"] and not paper and not is_ls:
@@ -163,11 +163,10 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
         gs = boxes.gaussian_set(g_m, b_m)
     else:  # leaves straight into the output, tiles after them
         out = W.new_gaussians(m_leaf + nt)
-        K["fill"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, is_ls, paper, scale,
-                  out)
+        K["fill"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, paper, scale, out)
         if nt:
             W.boxes_to_gaussians(tbox["c2"], tbox["ext"], tbox["nvox"], tbox["val"], tbox["kind"],
-                                 0, is_ls, paper, scale, out, m_leaf)
+                                 0, paper, scale, out, m_leaf)
         gcount = np.concatenate([counts[nz], np.ones(nt, np.int64)]) if nt else counts[nz]
         gs = _gaussian_set(grid, origins, gcount, out, n_leaf, scale, weights, params)
     if refine and not is_ls and gs.count:
@@ -181,21 +180,22 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
 def _gaussian_set(grid, origins, gcount, out, n_leaf, scale, weights, params):
     gstart = np.zeros(len(origins) + 1, np.int64)
     np.cumsum(gcount, out=gstart[1:])
+    dist = W.level_set_distances(out) if grid.grid_class == "level_set" else None
     offsets, codes, sig, amp, vox, vals = out
     return GaussianSet(
         group_origins=origins, group_start=gstart, offsets=offsets, sigmas=sig, values=vals,
         amplitudes=amp, voxels=vox, grid_class=grid.grid_class, lod=params["preset"],
         weights=weights, index_to_world=np.asarray(grid.index_to_world, np.float64),
         background=float(grid.background), n_leaf_groups=n_leaf, size_codes=codes,
-        sigma_scale=scale, params=params)
+        sigma_scale=scale, params=params, distances=dist)
 
 
 class _Boxes:
     """The merge pass's boxes -> Gaussians, and their field error per leaf cell."""
 
-    def __init__(self, grid, origins, n_leaf, nt, is_ls, paper, scale, weights, params):
+    def __init__(self, grid, origins, n_leaf, nt, paper, scale, weights, params):
         self.grid, self.origins, self.n_leaf, self.nt = grid, origins, n_leaf, nt
-        self.is_ls, self.paper, self.scale = is_ls, paper, scale
+        self.paper, self.scale = paper, scale
         self.weights, self.params = weights, params
 
     def gaussian_set(self, group, box):
@@ -209,7 +209,7 @@ class _Boxes:
         gcount = np.bincount(group, minlength=len(origins))
         out = W.new_gaussians(len(group))
         W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["kind"],
-                             len(group) - self.nt, self.is_ls, self.paper, self.scale, out, 0)
+                             len(group) - self.nt, self.paper, self.scale, out, 0)
         return _gaussian_set(self.grid, origins, gcount, out, n_leaf, self.scale, self.weights,
                              self.params)
 

@@ -8,8 +8,9 @@ Everything is a bit-packed stream of small unsigned integers whose width is fitt
 - sizes as codes with sigma = sigma_scale x code (field: code = block edge; paper: code = 2 sigma):
   one code for a sphere, three for an ellipsoid, a 1-bit sphere flag when both kinds occur;
 - voxels represented only where they differ from prod(code) (a 1-bit flag, then the exceptions);
-- values: none for level sets (uniform opacity), one number when constant, else float16 when every
-  value survives the cast within VALUE_TOL x value range (a 256-entry transfer function resolves
+- values (level sets: their uniform opacity is not stored, the stream holds their mean signed
+  distances; none in older files): one number when constant, else float16 when every value
+  survives the cast within VALUE_TOL x value range (a 256-entry transfer function resolves
   1/256 = 3.9e-3 of the range), else float32;
 - amplitudes are never stored: they follow from sigma and V;
 - tiles (one Gaussian each, all derived from the edge): leaf-lattice coordinates as int32 (few),
@@ -295,10 +296,11 @@ def encode_compact(g: GaussianSet) -> dict:
         else:
             enc["tile_levels"] = pack(lv, 2)
     # -- values (leaves, then tiles)
-    if g.grid_class == "level_set" or g.count == 0:
+    v = g.distances if g.grid_class == "level_set" else g.values
+    if v is None or g.count == 0:
         meta["value_mode"] = 0
     else:
-        v = g.values
+        v = np.asarray(v, np.float32)
         if np.all(v == v[0]):
             meta["value_mode"] = 1
             enc["value_const"] = v[:1].astype(np.float32)
@@ -423,6 +425,9 @@ def decode_compact(enc: dict) -> GaussianSet:
         vals = np.full(m_all, enc["value_const"][0], np.float32)
     else:
         vals = enc["values"].astype(np.float32)
+    dist = None
+    if _CLASSES[meta["class"]] == "level_set":
+        dist, vals = (vals if vm else None), np.ones(m_all, np.float32)
     offsets = (c2.astype(np.float32) * np.float32(0.5))
     gstart = np.zeros(nl + nt + 1, np.int64)
     np.cumsum(np.concatenate([counts, np.ones(nt, np.int64)]), out=gstart[1:])
@@ -433,4 +438,4 @@ def decode_compact(enc: dict) -> GaussianSet:
         voxels=vox.astype(np.int32), grid_class=_CLASSES[meta["class"]],
         lod=lod, weights=weights, index_to_world=i2w, background=background, n_leaf_groups=nl,
         size_codes=codes.astype(np.int32),
-        sigma_scale=scale, params={})
+        sigma_scale=scale, params={}, distances=dist)

@@ -16,7 +16,7 @@ class GaussianSet:
     group_start: np.ndarray  # int64 (G + 1,)
     offsets: np.ndarray  # float32 (M, 3): centre - group origin, index units
     sigmas: np.ndarray  # float32 (M, 3): standard deviations, index units
-    values: np.ndarray  # float32 (M,): mean of the represented voxels (1.0 for level sets)
+    values: np.ndarray  # float32 (M,): mean of the represented voxels (level sets: 1.0)
     amplitudes: np.ndarray  # float32 (M,): peak occupancy (field: V/((2pi)^1.5 sx sy sz), paper: 1)
     voxels: np.ndarray  # int32 (M,): voxels represented
     grid_class: str = "fog_volume"
@@ -32,6 +32,9 @@ class GaussianSet:
     # a second grid of the same file on these Gaussians (second_grid.py): float32 (M,) or None
     color_values: np.ndarray | None = None
     color_background: float = 0.0  # that grid's background: its value away from the Gaussians
+    # level sets: float32 (M,) the mean signed distance (the grid's units) of the voxels each
+    # Gaussian stands for (the voxels its value averages); None where unknown (older files)
+    distances: np.ndarray | None = None
 
     # ---- derived -------------------------------------------------------------------------
     @property

@@ -12,6 +12,11 @@ import numpy as np
 from ..jit import njit, parallel_njit, prange
 
 DEFAULT_BAND_WIDTH = 0.5 * np.sqrt(3.0)
+# Where the surface passes within 1 - band_width of a layer of voxel centres and its normal is
+# near an axis, the band keeps that layer only: the signed distances there are all in
+# [0, 1 - band_width) voxel, and their mixture never reaches 0. The field draws the level
+# SURFACE_LEVEL voxel instead of 0 (kernels/render/_cpu_surface.py).
+SURFACE_LEVEL = 1.0 - DEFAULT_BAND_WIDTH
 
 
 def voxel_size(index_to_world) -> float:
@@ -42,6 +47,11 @@ def band_masks(masks, values, thr):
                         r |= np.uint64(1) << np.uint64(b)
             out[i, w] = r
     return out
+
+
+def surface_level(index_to_world) -> float:
+    """SURFACE_LEVEL in the grid's units (its values' world units)."""
+    return SURFACE_LEVEL * voxel_size(index_to_world)
 
 
 def band_threshold(grid, band_width=DEFAULT_BAND_WIDTH) -> float:

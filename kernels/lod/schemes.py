@@ -304,7 +304,7 @@ def count_leaves(kept, values, order, scheme, thr_sp, thr_v2):
 
 
 @njit(cache=True)
-def _high_leaf(mrow, vals, k, level_set, paper, scale, out):
+def _high_leaf(mrow, vals, k, paper, scale, out):
     """HIGH written directly: a dense leaf as 64 2^3 blocks, else one Gaussian per voxel; centres
     and values per Gaussian, then the shape (the same for the whole leaf) in one loop."""
     k0 = k
@@ -320,8 +320,7 @@ def _high_leaf(mrow, vals, k, level_set, paper, scale, out):
                         for y in range(y0, y0 + 2):
                             for z in range(z0, z0 + 2):
                                 s += vals[x * 64 + y * 8 + z]
-                    v = np.float32(1.0) if level_set else np.float32(s / 8)
-                    put_centre(out, k, 2 * x0 + 1, 2 * y0 + 1, 2 * z0 + 1, v)
+                    put_centre(out, k, 2 * x0 + 1, 2 * y0 + 1, 2 * z0 + 1, np.float32(s / 8))
                     k += 1
         put_shape(out, k0, k, gaussian_shape(2, 2, 2, 1, 8.0, paper, scale), 8)
         return
@@ -330,8 +329,7 @@ def _high_leaf(mrow, vals, k, level_set, paper, scale, out):
         while m:
             b = trailing_zeros(m)
             m &= m - np.uint64(1)
-            v = np.float32(1.0) if level_set else vals[w * 64 + b]
-            put_centre(out, k, 2 * w, 2 * (b >> 3), 2 * (b & 7), v)
+            put_centre(out, k, 2 * w, 2 * (b >> 3), 2 * (b & 7), vals[w * 64 + b])
             k += 1
     put_shape(out, k0, k, gaussian_shape(1, 1, 1, 1, 1.0, paper, scale), 1)
 
@@ -340,9 +338,9 @@ CHUNK = 32  # leaves per parallel task: one set of scratch arrays per task, not 
 
 
 @parallel_njit(cache=True)
-def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, level_set, paper, scale,
-                   out):
-    """Every leaf's Gaussians into out (see weights.new_gaussians) at rows starts[i]..."""
+def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, paper, scale, out):
+    """Every leaf's Gaussians into out (see weights.new_gaussians) at rows starts[i]..., each
+    with the mean of its voxels as its value (a level set's: weights.level_set_distances)."""
     n = order.shape[0]
     for t in prange((n + CHUNK - 1) // CHUNK):
         bits = np.empty(512, np.bool_)
@@ -356,7 +354,7 @@ def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, level_se
             if starts[i + 1] == starts[i]:
                 continue
             if scheme == HIGH:
-                _high_leaf(kept[i], values[order[i]], starts[i], level_set, paper, scale, out)
+                _high_leaf(kept[i], values[order[i]], starts[i], paper, scale, out)
                 continue
             nact = _unpack(kept[i], bits)
             cnt = _leaf_emit(scheme, bits, nact, values[order[i]], True, 0, c2, ext, nvox, val,
@@ -364,8 +362,7 @@ def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, level_se
             for q in range(cnt):
                 shape = gaussian_shape(ext[q, 0], ext[q, 1], ext[q, 2], kind[q],
                                        np.float64(nvox[q]), paper, scale)
-                put_centre(out, starts[i] + q, c2[q, 0], c2[q, 1], c2[q, 2],
-                           np.float32(1.0) if level_set else val[q])
+                put_centre(out, starts[i] + q, c2[q, 0], c2[q, 1], c2[q, 2], val[q])
                 put_shape(out, starts[i] + q, starts[i] + q + 1, shape, nvox[q])
 
 

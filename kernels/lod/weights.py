@@ -105,8 +105,9 @@ def put_shape(out, j0, j1, shape, nvox):
 
 
 @njit(cache=True)
-def boxes_to_gaussians(c2, ext, nvox, val, kind, first_tile, level_set, paper, scale, out, at):
-    """Boxes -> Gaussians at out rows at, at + 1, ...; boxes from first_tile on are tiles, whose
+def boxes_to_gaussians(c2, ext, nvox, val, kind, first_tile, paper, scale, out, at):
+    """Boxes -> Gaussians at out rows at, at + 1, ... (values: the boxes' means; a level set's:
+    level_set_distances); boxes from first_tile on are tiles, whose
     true volume (up to 4096^3) does not fit nvox. Serial: tiles are few, and the merge pass that
     precedes it for merged boxes costs ~30x more."""
     for k in range(c2.shape[0]):
@@ -115,9 +116,17 @@ def boxes_to_gaussians(c2, ext, nvox, val, kind, first_tile, level_set, paper, s
         else:
             vox = np.float64(nvox[k])
         shape = gaussian_shape(ext[k, 0], ext[k, 1], ext[k, 2], kind[k], vox, paper, scale)
-        put_centre(out, at + k, c2[k, 0], c2[k, 1], c2[k, 2],
-                   np.float32(1.0) if level_set else val[k])
+        put_centre(out, at + k, c2[k, 0], c2[k, 1], c2[k, 2], val[k])
         put_shape(out, at + k, at + k + 1, shape, nvox[k])
+
+
+def level_set_distances(out):
+    """A level set's Gaussians (out as new_gaussians gives it, filled): the means written as their
+    values are the mean signed distances of the voxels each stands for, returned; the values
+    become 1, the occupancy of the shell (what the field and the shells draw)."""
+    dist = out[5].copy()
+    out[5][:] = 1.0
+    return dist
 
 
 # -- amplitude factors (refinement, adaptive fit) as the compact encoding stores them ------------

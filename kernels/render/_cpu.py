@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
+from ..lod.levelset import SURFACE_LEVEL
 from ._cpu_chords import NF, OVERFLOW
 from ._cpu_fog import reference_fog
 from ._cpu_gauss import NB, trace_gauss, trace_tiles
@@ -284,7 +285,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
                 return p
         if st[HIT] == HIT_NORMAL:
             mixture_normal(st, ro, rd, accel.node_min, accel.node_dims, accel.node_off, accel.node_table,
-                           accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec)
+                           accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec, gauss.cw,
+                           objs.sdf[int(st[HIT_OB])], objs.cbg[int(st[HIT_OB])] / SURFACE_LEVEL)
         if st[HIT] > 0.0:
             shade_hit(st, w2i[int(st[HIT_OB])], xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
         Tr = st[TR]
@@ -316,7 +318,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
                   np.empty((accel.walk_obj.shape[0], 3), np.int64), np.empty(n_obj),
                   np.empty(n_obj, np.int64),
                   np.empty(5), np.empty(6), np.empty(6), np.empty(NST), np.empty(6, np.int64),
-                  np.empty(5), np.empty(NB, np.int64), np.empty((NB, 8)), np.empty((n_obj, 2)),
+                  np.empty(5), np.empty(NB, np.int64), np.empty((NB, 8)), np.empty((n_obj, 5)),
                   np.empty(6), np.empty((n_obj, 3)), np.empty(n_obj))
     cap = 256
     hits = ray_scratch(cap)

@@ -77,21 +77,18 @@ from ._cpu_chords import (
 )
 from ._cpu_lit import lit_member, shade_sample
 from ._cpu_math import (
-    HIT,
-    HIT_NORMAL,
     INF,
     SEGS,
     TMIN,
     TR,
     _hot,
     add_sample,
-    composite,
     composite_sample,
     erf_fast,
     recolor,
     sample_color,
 )
-from ._cpu_surface import surface_hit
+from ._cpu_surface import field_crossing, mixture_hit
 from ._cpu_tiles import TILE
 from .scene import Mode
 
@@ -175,30 +172,14 @@ def _move_slot(H, act, k, j, glit, gcol):
 
 
 @njit(**_hot)
-def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
-    """Object ob's surface at th, inside the sample at ti: the volumes of that sample composite
-    over [ti - hstep / 2, th], then the hit with the outward normal -grad(mixture) at th, summed
-    is left for render_pixels to take from the Gaussians around the hit (mixture_normal): the
-    ray's active set is only a tube around it."""
-    if acc[0] > 0.0 and th > ti - 0.5 * hstep:
-        sig = acc[0]
-        composite(st, sig * (th - (ti - 0.5 * hstep)), acc[1] / sig, acc[2] / sig, acc[3] / sig,
-                  acc[4] / acc[5] if acc[5] > 0 else np.nan, ti - 0.5 * hstep, th)
-    x = ro[ob, 0] + th * rd[ob, 0]
-    y = ro[ob, 1] + th * rd[ob, 1]
-    z = ro[ob, 2] + th * rd[ob, 2]
-    surface_hit(st, ob, th, 0.0, 0.0, 0.0, obj_ls, lut, x, y, z)
-    st[HIT] = HIT_NORMAL  # the normal is still to be found
-
-
-@njit(**_hot)
 def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, rd, obj_kind, obj_tf,
                 obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev, objs, xfer, wr, sgrad, g_cw,
                 cvals):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque.
-    Surfaces (obj_kind 2): the mixture's first rise through 0.5 between samples (sprev: the
-    object's previous sample value and index), placed by the secant; the volumes composite up to
-    it and the ray ends there (mixture_hit). Lit volumes (objs.lit): each sample is shaded on the
+    Surfaces (obj_kind 2): the first crossing between samples (_cpu_surface.field_crossing;
+    sprev: the object's previous sample level and index); the volumes composite up to it and the
+    ray ends there (mixture_hit). With signed distances (objs.sdf) their mixture is carried as a
+    colour grid's is (CV, g_cw, cvals). Lit volumes (objs.lit): each sample is shaded on the
     mixture's analytic gradient, sum_g -V_g (x - mu_g) / sigma_g^2 (sgrad per object; wr the
     world ray; _cpu_lit). Volumes coloured by a second grid (objs.ctf): its mixture, with the
     weights g_cw on the same Gaussians, is carried beside the field (CV) and summed per object
@@ -209,9 +190,9 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
     glit = False
     for ob in range(obj_lit.shape[0]):
         glit = glit or obj_lit[ob] != 0
-    gcol = False
+    gcol = False  # a second mixture carried: colour grids, surfaces' signed distances
     for ob in range(obj_ctf.shape[0]):
-        gcol = gcol or obj_ctf[ob] >= 0
+        gcol = gcol or obj_ctf[ob] >= 0 or objs.sdf[ob] != 0
     hstep = fs[HSTEP]
     cend = fs[CEND]
     n_obj = ro.shape[0]
@@ -318,18 +299,14 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
         best = -1
         bt = INF
         for ob in range(n_obj):
-            if sact[ob] == 0:
+            if obj_kind[ob] == 2:  # at every sample: a passage through the shell may end here
+                th = field_crossing(sprev, ob, isamp, ti, hstep, svals[ob], cvals[ob], objs.sdf[ob],
+                                    objs.cbg[ob])
+                if th < bt:
+                    bt = th
+                    best = ob
                 continue
-            if obj_kind[ob] == 2:
-                sv = svals[ob]
-                prev = sprev[ob, 0] if sprev[ob, 1] == isamp - 1 else 0.0  # none active: 0
-                sprev[ob, 0] = sv
-                sprev[ob, 1] = isamp
-                if sv >= 0.5 and prev < 0.5:
-                    th = ti - hstep + (0.5 - prev) / (sv - prev) * hstep
-                    if th < bt:
-                        bt = th
-                        best = ob
+            if sact[ob] == 0:
                 continue
             x = ro[ob, 0] + ti * rd[ob, 0]
             y = ro[ob, 1] + ti * rd[ob, 1]

@@ -1,9 +1,21 @@
 """Lit opaque surfaces (level sets): the hit (surface_hit: albedo, depth), its Blinn-Phong shading
 (shade_hit), the reference mode's signed-distance crossing and normal (voxel bricks), and the field
-mode's normal from the Gaussians around the hit (mixture_normal)."""
+mode's crossing between samples (field_crossing, mixture_hit) and normal from the Gaussians around
+the hit (mixture_normal).
+
+Field mode, Gaussians with signed distances d_i (GaussianSet.distances, Objects.sdf): the surface
+is the zero of the normalised signed mixture S(x) = sum_i w_i(x) d_i / sum_i w_i(x), trusted where
+the occupancy sum_i w_i(x) >= SDF_OCCUPANCY (inside the shell); where the band kept one layer of
+voxels S stays just above 0 through it, and such a passage is the hit (field_crossing). The
+normal is the gradient of the linear fit d ~ a + g.(x - mu) to the Gaussians' distances weighted
+by w_i(x) at the hit (moving least squares: grad S itself follows the jagged shell of voxels, up
+to 20 degrees off on a sphere; the fit is within 0.6). Without distances (older files): the 0.5
+occupancy, normal from the blurred occupancy's gradient."""
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from ..jit import njit
 from ._cpu_math import (
@@ -13,6 +25,7 @@ from ._cpu_math import (
     HIT_C,
     HIT_FOUND,
     HIT_G,
+    HIT_NORMAL,
     HIT_OB,
     HIT_T,
     INF,
@@ -21,6 +34,7 @@ from ._cpu_math import (
     RAD,
     TR,
     _hot,
+    composite,
     lut_pos,
 )
 from .packing import SET_SHADING
@@ -189,17 +203,93 @@ def sdf_crossing(sprev, ob, phi, t, p0, h, ro, rd, B, cxyz):
     return 0.5 * (lo + hi)
 
 
-NORMAL_BLUR = 1.0  # field surfaces: variance (voxels^2) of the blur under the normal
+SDF_OCCUPANCY = 0.25  # signed-distance surfaces: the occupancy above which S is trusted
+NORMAL_BLUR = 1.0  # occupancy surfaces: variance (voxels^2) of the blur under the normal
 NORMAL_REACH = 4.0  # voxels around the hit searched for Gaussians
+
+
+@njit(**_hot, inline="always")
+def field_crossing(sprev, ob, isamp, ti, hstep, sv, nv, sdf, level):
+    """Object ob's surface between samples isamp - 1 and isamp (at ti, hstep apart), or INF.
+    sdf: where S = nv / sv (nv = sum_i w_i d_i) falls through 0 while the occupancy sv >=
+    SDF_OCCUPANCY (placed by the secant; a first such sample already <= 0: there); a passage
+    through the shell that ends without it, its mean S (occupancy-weighted) below level (a single
+    layer of voxels, see levelset.SURFACE_LEVEL): the passage's occupancy-weighted centre. Else
+    where sv rises through 0.5 (by the secant). sprev[ob]: the last sample's level and index; the
+    passage's sums of sv, sv t and nv."""
+    adjacent = sprev[ob, 1] == isamp - 1
+    if sdf == 0:
+        prev = sprev[ob, 0] if adjacent else 0.0  # none active: 0
+        sprev[ob, 0], sprev[ob, 1] = sv, isamp
+        if sv >= 0.5 and prev < 0.5:
+            return ti - hstep + (0.5 - prev) / (sv - prev) * hstep
+        return INF
+    prev = sprev[ob, 0] if adjacent else np.nan  # NaN: not in a passage
+    if sv < SDF_OCCUPANCY:
+        sprev[ob, 0], sprev[ob, 1] = np.nan, isamp
+        return sprev[ob, 3] / sprev[ob, 2] if prev == prev and sprev[ob, 4] < level * sprev[ob, 2] else INF
+    f = nv / sv
+    sprev[ob, 0], sprev[ob, 1] = f, isamp
+    if f <= 0.0:
+        return ti - hstep + prev / (prev - f) * hstep if prev > 0.0 else ti
+    if prev != prev:  # a passage begins
+        sprev[ob, 2], sprev[ob, 3], sprev[ob, 4] = 0.0, 0.0, 0.0
+    sprev[ob, 2], sprev[ob, 3], sprev[ob, 4] = sprev[ob, 2] + sv, sprev[ob, 3] + sv * ti, sprev[ob, 4] + nv
+    return INF
+
+
+@njit(**_hot)
+def mixture_hit(st, ob, th, ti, hstep, ro, rd, obj_ls, lut, acc):
+    """Object ob's surface at th, inside the sample at ti: the volumes of that sample composite
+    over [ti - hstep / 2, th], then the hit; its normal is left for render_pixels to take from
+    the Gaussians around the hit (mixture_normal): the ray's active set is only a tube around it."""
+    if acc[0] > 0.0 and th > ti - 0.5 * hstep:
+        sig = acc[0]
+        composite(st, sig * (th - (ti - 0.5 * hstep)), acc[1] / sig, acc[2] / sig, acc[3] / sig,
+                  acc[4] / acc[5] if acc[5] > 0 else np.nan, ti - 0.5 * hstep, th)
+    x = ro[ob, 0] + th * rd[ob, 0]
+    y = ro[ob, 1] + th * rd[ob, 1]
+    z = ro[ob, 2] + th * rd[ob, 2]
+    surface_hit(st, ob, th, 0.0, 0.0, 0.0, obj_ls, lut, x, y, z)
+    st[HIT] = HIT_NORMAL  # the normal is still to be found
+
+
+@njit(**_hot, inline="always")
+def fit_gradient(s0, s1, s2, s3, sxx, sxy, sxz, syy, syz, szz, d0, d1, d2, d3, slope):
+    """The slope g of the weighted least-squares fit d ~ a + g.u from the sums of w (s0), w u
+    (s1..s3), w u u^T (sxx..szz), w d (d0) and w d u (d1..d3). Where the fit's |g| falls short of
+    half a signed distance's slope (the voxel's size): the points lie in one layer, which leaves
+    g across it undetermined; the layer's normal then (the adjugate's longest column: the
+    covariance's least axis; any sign, shade_hit turns it to the viewer)."""
+    mx, my, mz, dm = s1 / s0, s2 / s0, s3 / s0, d0 / s0
+    cxx, cxy, cxz = sxx / s0 - mx * mx, sxy / s0 - mx * my, sxz / s0 - mx * mz
+    cyy, cyz, czz = syy / s0 - my * my, syz / s0 - my * mz, szz / s0 - mz * mz
+    bx, by, bz = d1 / s0 - mx * dm, d2 / s0 - my * dm, d3 / s0 - mz * dm
+    a00, a01, a02 = cyy * czz - cyz * cyz, cxz * cyz - cxy * czz, cxy * cyz - cxz * cyy
+    a11, a12, a22 = cxx * czz - cxz * cxz, cxy * cxz - cxx * cyz, cxx * cyy - cxy * cxy
+    det = cxx * a00 + cxy * a01 + cxz * a02
+    tr = cxx + cyy + czz
+    if det > 1e-9 * tr * tr * tr:
+        gx = (a00 * bx + a01 * by + a02 * bz) / det
+        gy = (a01 * bx + a11 * by + a12 * bz) / det
+        gz = (a02 * bx + a12 * by + a22 * bz) / det
+        if gx * gx + gy * gy + gz * gz >= 0.25 * slope * slope:
+            return gx, gy, gz
+    n0, n1, n2 = a00 * a00 + a01 * a01 + a02 * a02, a01 * a01 + a11 * a11 + a12 * a12, a02 * a02 + a12 * a12 + a22 * a22
+    if n0 >= n1 and n0 >= n2:
+        return a00, a01, a02
+    return (a01, a11, a12) if n1 >= n2 else (a02, a12, a22)
 
 
 @njit(**_hot)
 def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_start, cell_items,
-                   g_rec):
-    """The outward normal at a field-mode surface hit (st, see surface_hit): -grad of the
-    object's mixture blurred by a Gaussian of variance NORMAL_BLUR (each sigma^2 grows by it),
-    summed over the Gaussians centred in the leaf cells within NORMAL_REACH of the hit (each is
-    listed in the cell of its centre, among others). The blur evens out the lattice of
+                   g_rec, g_cw, sdf, slope):
+    """The outward normal at a field-mode surface hit (st, see surface_hit) from the Gaussians
+    centred in the leaf cells within NORMAL_REACH of the hit (each is listed in the cell of its
+    centre, among others). sdf (the Gaussians' signed distance x weight in g_cw): the fit's
+    gradient (fit_gradient; slope: a distance's change per voxel, the voxel's size; see the
+    module doc); else -grad of the mixture blurred by a Gaussian
+    of variance NORMAL_BLUR (each sigma^2 grows by it), which evens out the lattice of
     voxel-sized Gaussians the shell is made of."""
     ob = int(st[HIT_OB])
     t = st[HIT_T]
@@ -215,6 +305,7 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
     nm = nmin[ob]
     nd = ndims[ob]
     gx = gy = gz = 0.0
+    s0 = s1 = s2 = s3 = sxx = sxy = sxz = syy = syz = szz = d0 = d1 = d2 = d3 = 0.0
     for cx in range(lo0, hi0 + 1):
         for cy in range(lo1, hi1 + 1):
             for cz in range(lo2, hi2 + 1):
@@ -237,6 +328,18 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
                     w = g_rec[g, 6]
                     if w == 0.0:
                         continue
+                    if sdf:  # the fit's sums, about the hit
+                        ux, uy, uz = g_rec[g, 0] - x, g_rec[g, 1] - y, g_rec[g, 2] - z
+                        q = (ux * g_rec[g, 3]) ** 2 + (uy * g_rec[g, 4]) ** 2 + (uz * g_rec[g, 5]) ** 2
+                        if q > 16.0:
+                            continue
+                        e = math.exp(-0.5 * q)
+                        ew, ed = w * e, g_cw[g] * e
+                        s0, s1, s2, s3 = s0 + ew, s1 + ew * ux, s2 + ew * uy, s3 + ew * uz
+                        sxx, sxy, sxz = sxx + ew * ux * ux, sxy + ew * ux * uy, sxz + ew * ux * uz
+                        syy, syz, szz = syy + ew * uy * uy, syz + ew * uy * uz, szz + ew * uz * uz
+                        d0, d1, d2, d3 = d0 + ed, d1 + ed * ux, d2 + ed * uy, d3 + ed * uz
+                        continue
                     ix = 1.0 / math.sqrt(1.0 / g_rec[g, 3] ** 2 + NORMAL_BLUR)
                     iy = 1.0 / math.sqrt(1.0 / g_rec[g, 4] ** 2 + NORMAL_BLUR)
                     iz = 1.0 / math.sqrt(1.0 / g_rec[g, 5] ** 2 + NORMAL_BLUR)
@@ -250,6 +353,8 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
                     gx += e * ux * ix
                     gy += e * uy * iy
                     gz += e * uz * iz
+    if sdf and s0 > 0.0:
+        gx, gy, gz = fit_gradient(s0, s1, s2, s3, sxx, sxy, sxz, syy, syz, szz, d0, d1, d2, d3, slope)
     st[HIT_G] = gx
     st[HIT_G + 1] = gy
     st[HIT_G + 2] = gz

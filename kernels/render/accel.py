@@ -49,8 +49,7 @@ def gaussian_arrays(gs):
     counts = np.diff(start)
     m = int(start[-1]) if start.size else 0
     if m == 0:
-        z = np.zeros((0, 3))
-        return z, z, np.zeros(0), np.zeros(0)
+        return gaussian_arrays_empty()
     mu = np.repeat(origins, counts, axis=0).astype(np.float64) + np.asarray(gs.offsets, np.float64)[:m]
     sig = np.asarray(gs.sigmas, np.float64)[:m]
     vals = np.asarray(gs.values, np.float64)[:m] if getattr(gs, "values", None) is not None \
@@ -135,13 +134,14 @@ class Accel:
 
 
 def _kept_arrays(gs, colors=False):
-    """gaussian_arrays without the Gaussians the renderer never draws (a zero or non-finite
-    sigma, centre or amplitude); with colors, also their second-grid values (NaN without)."""
+    """gaussian_arrays without the Gaussians the renderer never draws (a zero or non-finite sigma,
+    centre or amplitude); with colors, also their second-grid values (NaN without; level sets: distances)."""
     mu, sig, v, a = gaussian_arrays(gs) if gs is not None else gaussian_arrays_empty()
     keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
     if not colors:
         return mu[keep], sig[keep], v[keep], a[keep]
-    cv = np.asarray(getattr(gs, "color_values", None) if gs is not None else None, np.float64)
+    second = "distances" if getattr(gs, "grid_class", "") == "level_set" else "color_values"
+    cv = np.asarray(getattr(gs, second, None), np.float64)
     return mu[keep], sig[keep], v[keep], a[keep], cv[:keep.shape[0]][keep] if cv.ndim else v[keep] * np.nan
 
 

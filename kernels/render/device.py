@@ -222,19 +222,20 @@ class CPUDevice(Device):
                     col[s] = rgba[:, :3]
         return w, col
 
-    def _color_weights(self, obj_ctf):
-        """The colour grids' field weights ((second value - its background) x amplitude: the
-        colour mixture is that grid's background where no Gaussian is, as the reference mode's
-        voxels are) of the volumes coloured by one, zero elsewhere; None when no object is."""
-        if obj_ctf is None or not (obj_ctf >= 0).any():
+    def _color_weights(self, objects):
+        """The second mixture's field weights (second value x amplitude): the volumes' coloured
+        by a grid (less its background, objects.cbg: that mixture is the background where no
+        Gaussian is, as the reference mode's voxels are), the surfaces' signed distances
+        (Objects.sdf); zero elsewhere; None when no object has one."""
+        sel = np.flatnonzero((objects.ctf >= 0) | (objects.sdf != 0))
+        if not sel.size:
             return None
         A = self.gacc
         cw = np.zeros(A.g_val.shape[0])
-        for k in np.flatnonzero(obj_ctf >= 0):
+        for k in sel:
             s = slice(A.g_first[k], A.g_first[k + 1])
-            bg = float(getattr(self._objects[k].gaussians, "color_background", 0.0) or 0.0)
             cv = A.g_cval[s]
-            cw[s] = np.where(np.isnan(cv), 0.0, cv - bg) * A.g_amp[s]
+            cw[s] = np.where(np.isnan(cv), 0.0, cv - objects.cbg[k] * (objects.ctf[k] >= 0)) * A.g_amp[s]
         return cw
 
     def _cell_skip(self, mode, acc, w, tfs, obj_tf, obj_kind):
@@ -300,7 +301,7 @@ class CPUDevice(Device):
         _, objects, transfer = prep
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
                   objects.clip, objects.lit, transfer.lights, transfer.settings, objects.ctf,
-                  objects.cbg)
+                  objects.cbg, objects.sdf)
         return (self._sync_count, mode, bool(self.screen_tiles), self.tiles_elsewhere,
                 camera.packed().tobytes()) + tuple(
             np.ascontiguousarray(a).tobytes() for a in tables)
@@ -361,7 +362,7 @@ class CPUDevice(Device):
                 self._g_rec = packing.test_records(acc)
             lit = mode == Mode.PARTICLES and (objects.lit != 0).any()
             gauss = packing.pack_gaussians(acc, g_w, g_col, self._g_rec,
-                                           self._color_weights(ctf) if mode == Mode.FIELD else None,
+                                           self._color_weights(objects) if mode == Mode.FIELD else None,
                                            self._lit_gradients() if lit else None)
             *tiles, t_lb = self._screen_tiles(mode, scene, camera, gauss.w)
             if t_lb is not None:

@@ -93,8 +93,10 @@ def frame_table(frame):
 def object_rows(frame):
     """Per object OBJ_TEXELS texels: w2i rows 0-2; [kind, tf row, step, lit]; ls[0:4]; ls[4:8];
     [ls 8:11, clip count]; [node_min xyz, node_off]; [node_dims xyz, walk scale]; [reference point
-    xyz, 0]; its shadow grid (packing.Objects.sh_grid: [origin xyz, spacing], [dims xyz, offset in
-    sh_tau]); then its clip half-spaces (one texel each). Returns (table, texels per object)."""
+    xyz, a signed-distance surface's single-layer level (packing.Objects.sdf, cbg; 0: none)]; its
+    shadow grid (packing.Objects.sh_grid: [origin xyz,
+    spacing], [dims xyz, offset in sh_tau]); then its clip half-spaces (one texel each). Returns
+    (table, texels per object)."""
     o, a = frame.objects, frame.accel
     n = o.w2i.shape[0]
     if n > MAX_OBJ:
@@ -113,6 +115,7 @@ def object_rows(frame):
     rows[:, 8, 3] = a.walk_scale[:n]
     if o.ref.shape[0] >= n:
         rows[:, 9, :3] = o.ref[:n]
+    rows[:, 9, 3] = np.where(o.sdf[:n] != 0, o.cbg[:n], 0.0)
     rows[:, 10:12] = np.asarray(o.sh_grid[:n]).reshape(n, 2, 4)
     rows[:, OBJ_TEXELS:] = o.clip
     _exact(rows[:, 7:9], "object node grids")

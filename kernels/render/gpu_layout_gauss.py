@@ -10,7 +10,8 @@ Tables (name: rows x columns, what):
 - g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table): texel 0 = centre (3) and
   the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
   factor); texel 1 = [1/sigma x, y, z as 18-bit floats with the object (4 bits) and "has a
-  value" (1 bit) in two words (size_words), w, value (0 when NaN)]. A packed word's high half
+  value" (1 bit) in two words (size_words), w, value (0 when NaN; field mode: the weight of the
+  second mixture, packing.Gaussians.cw: surfaces' signed distance x w)]. A packed word's high half
   is a normal half float's bits (range checked), so the word is a normal float32 (never NaN,
   Inf or denormal) and survives upload and texelFetch bit for bit. Colours are not uploaded:
   the shader takes them from the transfer function's LUT at the value (level sets: ls_color).
@@ -96,6 +97,8 @@ def gauss_tables(mode, gauss) -> dict:
     out[:, 4:6] = size_words(rec[:, 3:6], np.asarray(gauss.obj, np.int64) | (ok.astype(np.int64) << 4))
     out[:, 6] = rec[:, 6]
     out[:, 7] = np.where(ok, val, 0.0)
+    if mode == Mode.FIELD and np.shape(gauss.cw) == (m,):  # the field reads no values
+        out[:, 7] = gauss.cw
     return {"g_rec": fold(out)}
 
 

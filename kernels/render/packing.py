@@ -12,13 +12,15 @@ from collections import namedtuple
 
 import numpy as np
 
+from ..lod.levelset import surface_level
 from . import clip, lights
 
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
 # lists); sph: a float32 bounding sphere near obj_ref; clo/chi: the leaf-cell box of its support;
 # cw: the field weight of the colour grid's mixture ((colour value - its background) x amplitude;
-# objects coloured by a second grid, Objects.ctf; one dummy row when no object is);
+# objects coloured by a second grid, Objects.ctf, and surfaces' signed distance x amplitude,
+# Objects.sdf; one dummy row when no object is);
 # grad: lit volumes in particles mode, the gradient of the other Gaussians' field at its centre
 # and its own field weight (value x amplitude), one dummy row otherwise.
 Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi cw grad")
@@ -29,8 +31,10 @@ Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi
 # (sh_grid rows [origin xyz, spacing, dims xyz, offset into sh_tau]; sh_tau: the optical depth
 # towards each light at each grid point, light fastest; _cpu_lit) and, for a volume coloured by a
 # second grid, its colour map's transfer-function row (-1: coloured by its own values) and that
-# grid's background (its value where no Gaussian is: the field adds it to the colour mixture).
-Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf cbg")
+# grid's background (its value where no Gaussian is: the field adds it to the colour mixture);
+# sdf: 1 for a surface whose Gaussians carry signed distances (their mixture is carried as the
+# colour mixture is; cbg: its single-layer level, levelset.surface_level: _cpu_surface.field_crossing).
+Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf cbg sdf")
 LIT, LIT_SHADOWS = 1, 2
 # Acceleration: the leaf hierarchy (node grids, node -> cell tables: per object its leaves, then
 # the grids of coarser cells that hold the larger Gaussians), the cells' Gaussian lists (and per
@@ -135,11 +139,15 @@ def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=
                     for o in objs], np.int32)
     ctf = np.full(max(n, 1), -1, np.int32) if obj_ctf is None else np.asarray(obj_ctf, np.int32)
     cbg = np.zeros(max(n, 1))
+    sdf = np.zeros(max(n, 1), np.int32)
     for k, o in enumerate(objs):
         if ctf[k] >= 0:
             cbg[k] = float(getattr(o.gaussians, "color_background", 0.0) or 0.0)
+        sdf[k] = kind[k] == 2 and getattr(o.gaussians, "distances", None) is not None
+        if sdf[k]:
+            cbg[k] = surface_level(o.gaussians.index_to_world)
     return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n), ctf,
-                   cbg)
+                   cbg, sdf)
 
 
 def no_shadows(n):

@@ -139,3 +139,26 @@ def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):
     bits = table.view(np.uint32)
     assert table.size >= 8 * fr.gauss.rec.shape[0]  # every Gaussian's 8 words compared
     assert (lo == (bits & 0xFFFF)).all() and (hi == (bits >> 16)).all()
+
+
+def test_field_sphere_surface_on_the_gpu(gpu, cpu):
+    """The written sphere level set at High in field mode (test_render_surface's): the GPU's image
+    equals the CPU's (>= 50 dB) and meets the same bounds: silhouette within one pixel, normal
+    within 2 degrees at the centre and inside R/2; without signed distances (older files), the
+    0.5 occupancy matches too."""
+    from dataclasses import replace
+
+    import test_render_surface as S
+
+    grid, gs = S.sphere.__wrapped__()
+    for g in (gs, replace(gs, distances=None)):
+        sc = S.lit([S.surface(grid, g)], "field")
+        want = cpu.render(sc, S.camera(), S.TF)
+        got = gpu.render(sc, S.camera(), S.TF)
+        assert gpu.stats.get("fallback") is None and gpu.stats["overflow_tiles"] == 0
+        db = psnr(got["Combined"], want["Combined"])
+        print(f"sphere surface ({'distances' if g.distances is not None else 'occupancy'}): {db:.1f} dB")
+        assert db >= GPU_MIN_DB, db
+    over, short, centre, half, _ = S.sphere_errors(gpu.render(S.lit([S.surface(grid, gs)], "field"),
+                                                              S.camera(), S.TF))
+    assert over <= 1.0 and short <= 1.0 and centre < 2.0 and half < 2.0, (over, short, centre, half)

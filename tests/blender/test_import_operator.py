@@ -39,8 +39,9 @@ def check_object_matches_kernels(obj, grid, lods, weights="field", level_set_ban
     is_ls = grid.grid_class == "level_set"
     sphere = all(s.n_ellipsoids == 0 for s in sets)
     want = dict(EXPECTED_TYPES, gs_sigma="FLOAT" if sphere else "FLOAT_VECTOR")
-    if is_ls:
+    if is_ls:  # no values (uniform opacity); their signed distances
         want.pop("gs_value")
+        want["gs_distance"] = "FLOAT"
     if all(np.all(s.amplitudes == 1) for s in sets):
         want.pop("gs_amplitude")
     assert types == want
@@ -57,11 +58,14 @@ def check_object_matches_kernels(obj, grid, lods, weights="field", level_set_ban
         np.testing.assert_array_equal(sig if sig.ndim == 2 else np.repeat(sig[:, None], 3, 1), s.sigmas)
         if not is_ls:
             np.testing.assert_array_equal(attrs["gs_value"][sl], s.values)
+        else:
+            np.testing.assert_array_equal(attrs["gs_distance"][sl], s.distances)
         if "gs_amplitude" in attrs:
             np.testing.assert_array_equal(attrs["gs_amplitude"][sl], s.amplitudes)
         np.testing.assert_array_equal(attrs["gs_voxels"][sl], s.voxels)
         back = imp.gaussian_set_from_object(obj, lods[i])
-        for key in ("group_origins", "group_start", "offsets", "sigmas", "values", "amplitudes", "voxels"):
+        for key in ("group_origins", "group_start", "offsets", "sigmas", "values", "amplitudes", "voxels",
+                    "distances"):
             np.testing.assert_array_equal(getattr(back, key), getattr(s, key), err_msg=key)
     return sets
 

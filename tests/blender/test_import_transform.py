@@ -109,6 +109,10 @@ def test_oblique_transform_lands_where_blender_puts_the_volume(scene, bpy_module
         assert np.all(np.abs(lo - b_lo) <= half_voxel) and np.all(np.abs(hi - b_hi) <= half_voxel)
     else:
         assert "gs_value" not in obj.data.attributes and obj.gaussvdb.grid_class == "level_set"
+        gs = imp.gaussian_set_from_object(obj, "high")  # its signed distances, read back
+        assert gs.distances is not None and len(gs.distances) == gs.count and np.all(gs.values == 1)
+        obj.data.attributes.remove(obj.data.attributes["gs_distance"])  # as imported before them
+        assert imp.gaussian_set_from_object(obj, "high").distances is None
 
 
 def test_moving_the_object_moves_the_gaussians(scene, bpy_module):

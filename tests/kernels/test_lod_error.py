@@ -3,7 +3,7 @@ compact encoding's size and the paper storage model."""
 import numpy as np
 import pytest
 
-from kernels.lod import build_lod, encode_compact, encoded_nbytes, field_error, paper_model_bytes
+from kernels.lod import build_lod, decode_compact, encode_compact, encoded_nbytes, field_error, paper_model_bytes
 from kernels.lod.gridprep import effective_masks
 from kernels.lod.synthetic import bits_from_masks, grid_from_dense, random_sparse_grid
 
@@ -96,7 +96,8 @@ def test_compact_bytes_and_paper_model():
 
     ls = random_sparse_grid(5, n_leaves=30, span=4, grid_class="level_set")
     gl = build_lod(ls, "high")
-    assert "values" not in encode_compact(gl)  # level sets: uniform opacity, no values stored
+    enc = encode_compact(gl)  # level sets: uniform opacity; the values stored are their distances
+    assert enc["values"].dtype == np.float16 and np.all(decode_compact(enc).values == 1)
     assert paper_model_bytes(gl) == 12 * gl.count + 4 * gl.n_spheres + 12 * gl.n_ellipsoids
 
 

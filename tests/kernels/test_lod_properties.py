@@ -1,5 +1,5 @@
 """Properties over random sparse grids: counts, exact single coverage, mass, thread independence,
-encoding round trip."""
+encoding round trip, level sets' signed distances."""
 import numba
 import numpy as np
 import pytest
@@ -67,6 +67,32 @@ def test_encoding_round_trip(grid, weights):
         rng = gs.params["value_max"] - gs.params["value_min"]
         np.testing.assert_allclose(dec.values, gs.values, rtol=0, atol=1e-3 * rng + 1e-12)
         assert dec.grid_class == gs.grid_class and dec.lod == p and dec.weights == weights
+        assert (dec.distances is None) == (gs.grid_class != "level_set")
+        if dec.distances is not None:  # a level set's, in the value stream
+            np.testing.assert_allclose(dec.distances, gs.distances, rtol=0, atol=1e-3 * rng + 1e-12)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_level_set_distances_are_the_means_of_their_voxels(seed):
+    """A level set's Gaussians: value 1 (the shell's occupancy), and as signed distance the mean of
+    the voxels each stands for, as the second-grid sampler gives it (the level set coloured by
+    itself: the kept voxels of the Gaussian's own box); a set without them (an older file)
+    encodes no values and decodes without them."""
+    from dataclasses import replace
+
+    from kernels.lod.second_grid import second_values
+
+    ls = random_sparse_grid(seed, n_leaves=12, span=3, density=0.6, dense_frac=0.3,
+                            grid_class="level_set")
+    for p in PRESETS:
+        gs = build_lod(ls, p)
+        assert np.all(gs.values == 1) and gs.distances.dtype == np.float32, p
+        np.testing.assert_allclose(gs.distances, second_values(gs, ls, ls), rtol=1e-6, atol=1e-6,
+                                   err_msg=p)
+    old = replace(gs, distances=None)
+    enc = encode_compact(old)
+    assert "values" not in enc and "value_const" not in enc
+    assert decode_compact(enc).distances is None and np.all(decode_compact(enc).values == 1)
 
 
 def _all_arrays(gs):

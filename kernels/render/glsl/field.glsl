@@ -2,19 +2,22 @@
  * its screen tile's Gaussians in list order and samples the summed field at the midpoints
  * t_i = (i + 1/2) h (h: the finest object step along the ray) once every chord entering before
  * t_i is known. Each active chord's value is evaluated at the sample (the CPU carries it by two
- * multiplications; the same value). Surfaces (object kind 2): the mixture's first rise through
- * 0.5 between samples, placed by the secant; the normal from the Gaussians around the hit
+ * multiplications; the same value). Surfaces (object kind 2): the first crossing between samples
+ * (field_crossing: with signed distances, the zero of their normalised mixture; else the 0.5
+ * occupancy); the normal from the Gaussians around the hit
  * (mixture_normal). Entries wait in PCAP slots, active chords in PCAP more; a ray that needs
  * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. */
 #define NORMAL_BLUR 1.0
 #define NORMAL_REACH 4.0
+#define SDF_OCCUPANCY 0.25
+#define SURFACE_LEVEL 0.13397460  /* levelset.SURFACE_LEVEL: 1 - sqrt(3) / 2 */
 
 float f_e[PCAP], f_ts[PCAP], f_hq[PCAP], f_ha[PCAP];  /* waiting entries, by slot */
-float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP];  /* active chords */
+float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP], a_c[PCAP];  /* active chords */
 int a_ob[PCAP];
 int nact, isamp;
 float hstep, f_cend;
-float sprev_v[MAX_OBJ];
+float sprev_v[MAX_OBJ], sprev_w[MAX_OBJ], sprev_t[MAX_OBJ], sprev_n[MAX_OBJ];
 int sprev_i[MAX_OBJ];
 bool f_over;
 
@@ -26,6 +29,45 @@ void mixture_hit(inout State st, int ob, float th, float ti, float sig, vec3 col
     composite(st, sig * (th - t0), col / sig, vw > 0.0 ? vs / vw : 0.0 / 0.0, t0, th);
   }
   surface_hit(st, ob, th, vec3(0.0), g_ro[ob] + th * g_rd[ob]);
+}
+
+/* a signed-distance surface's single-layer level (gpu_layout.object_rows), 0 for none */
+float obj_level(int ob) { return obj_texel(ob, 9).w; }
+
+/* object ob's surface between samples isamp - 1 and isamp at ti, or INF (_cpu_surface.field_crossing:
+ * level > 0, where S = nv / sv falls through 0 while sv >= SDF_OCCUPANCY, or the occupancy-weighted
+ * centre of a passage through the shell that ends without it, its mean S below level; else where
+ * sv rises through 0.5). sprev_i: the last sample, -1e9 for one outside the shell; the passage's
+ * sums of sv (sprev_w), sv t (sprev_t) and nv (sprev_n). */
+float field_crossing(int ob, float ti, float sv, float nv, float level)
+{
+  bool adjacent = sprev_i[ob] == isamp - 1;
+  float prev = sprev_v[ob];
+  if (!(level > 0.0)) {
+    prev = adjacent ? prev : 0.0; /* none active: 0 */
+    sprev_v[ob] = sv;
+    sprev_i[ob] = isamp;
+    return sv >= 0.5 && prev < 0.5 ? ti - hstep + (0.5 - prev) / (sv - prev) * hstep : INF;
+  }
+  if (sv < SDF_OCCUPANCY) {
+    sprev_i[ob] = -1000000000;
+    return adjacent && sprev_n[ob] < level * sprev_w[ob] ? sprev_t[ob] / sprev_w[ob] : INF;
+  }
+  float f = nv / sv;
+  sprev_v[ob] = f;
+  sprev_i[ob] = isamp;
+  if (f <= 0.0) {
+    return adjacent && prev > 0.0 ? ti - hstep + prev / (prev - f) * hstep : ti;
+  }
+  if (!adjacent) { /* a passage begins */
+    sprev_w[ob] = 0.0;
+    sprev_t[ob] = 0.0;
+    sprev_n[ob] = 0.0;
+  }
+  sprev_w[ob] += sv;
+  sprev_t[ob] += sv * ti;
+  sprev_n[ob] += nv;
+  return INF;
 }
 
 /* The samples before horizon (see the file's comment). True once the ray ends (opaque, a
@@ -50,6 +92,7 @@ bool sweep_field(inout State st, float horizon)
       a_ha[nact] = f_ha[h];
       Gauss G = gauss_at(g);
       a_w[nact] = G.w;
+      a_c[nact] = G.val; /* the signed-distance weight (gpu_layout_gauss.gauss_tables) */
       a_ob[nact] = n_obj == 1 ? 0 : G.ob;
       nact++;
       f_cend = max(f_cend, f_e[h]);
@@ -68,10 +111,11 @@ bool sweep_field(inout State st, float horizon)
       isamp = max(isamp + 1, int(ceil(q_t[q0] / hstep - 0.5)));
       continue;
     }
-    float sv[MAX_OBJ];
+    float sv[MAX_OBJ], nv[MAX_OBJ];
     bool sact[MAX_OBJ];
     for (int ob = 0; ob < n_obj; ob++) {
       sv[ob] = 0.0;
+      nv[ob] = 0.0;
       sact[ob] = false;
     }
     int k = 0;
@@ -83,11 +127,14 @@ bool sweep_field(inout State st, float horizon)
         a_hq[k] = a_hq[nact];
         a_ha[k] = a_ha[nact];
         a_w[k] = a_w[nact];
+        a_c[k] = a_c[nact];
         a_ob[k] = a_ob[nact];
         continue;
       }
       float d = ti - a_ts[k];
-      sv[a_ob[k]] += a_w[k] * exp(-(a_hq[k] + a_ha[k] * d * d));
+      float e = exp(-(a_hq[k] + a_ha[k] * d * d));
+      sv[a_ob[k]] += a_w[k] * e;
+      nv[a_ob[k]] += a_c[k] * e;
       sact[a_ob[k]] = true;
       k++;
     }
@@ -98,20 +145,15 @@ bool sweep_field(inout State st, float horizon)
     vec3 col = vec3(0.0);
     int best = -1;
     for (int ob = 0; ob < n_obj; ob++) {
-      if (!sact[ob]) {
+      int kind = int(obj_texel(ob, 3).x);
+      if (!sact[ob] && kind != 2) { /* surfaces at every sample: a passage may end here */
         continue;
       }
-      int kind = int(obj_texel(ob, 3).x);
       if (kind == 2) {
-        float prev = sprev_i[ob] == isamp - 1 ? sprev_v[ob] : 0.0; /* none active: 0 */
-        sprev_v[ob] = sv[ob];
-        sprev_i[ob] = isamp;
-        if (sv[ob] >= 0.5 && prev < 0.5) {
-          float th = ti - hstep + (0.5 - prev) / (sv[ob] - prev) * hstep;
-          if (th < bt) {
-            bt = th;
-            best = ob;
-          }
+        float th = field_crossing(ob, ti, sv[ob], nv[ob], obj_level(ob));
+        if (th < bt) {
+          bt = th;
+          best = ob;
         }
         continue;
       }
@@ -143,10 +185,15 @@ bool sweep_field(inout State st, float horizon)
   return false;
 }
 
-/* -gradient of the hit object's mixture blurred by NORMAL_BLUR, from the Gaussians centred in the
- * leaf cells within NORMAL_REACH of the hit (_cpu_surface.mixture_normal) */
+/* the outward normal from the Gaussians centred in the leaf cells within NORMAL_REACH of the hit
+ * (_cpu_surface.mixture_normal): with signed distances, the gradient of their weighted
+ * least-squares linear fit (fit_gradient); else -gradient of the mixture blurred by NORMAL_BLUR */
 void mixture_normal(inout State st)
 {
+  bool sdf = obj_level(st.hit_ob) > 0.0;
+  float s0 = 0.0, d0 = 0.0;
+  vec3 s1 = vec3(0.0), d1 = vec3(0.0);
+  mat3 s2 = mat3(0.0);
   int ob = st.hit_ob;
   vec3 x = g_ro[ob] + st.hit_t * g_rd[ob];
   ivec3 lo = ivec3(floor((x + 0.5 - NORMAL_REACH) / LEAF));
@@ -177,6 +224,20 @@ void mixture_normal(inout State st)
             continue; /* counted in the cell of its centre */
           }
           vec3 iv = G.iv;
+          if (sdf) { /* the fit's sums, about the hit */
+            vec3 u = G.mu - x;
+            float qf = dot(u * iv, u * iv);
+            if (qf > 16.0) {
+              continue;
+            }
+            float e = exp(-0.5 * qf), ew = G.w * e;
+            s0 += ew;
+            s1 += ew * u;
+            s2 += ew * outerProduct(u, u);
+            d0 += G.val * e;
+            d1 += G.val * e * u;
+            continue;
+          }
           vec3 ib = 1.0 / sqrt(1.0 / (iv * iv) + NORMAL_BLUR);
           vec3 u = (x - G.mu) * ib;
           float q = dot(u, u);
@@ -187,6 +248,19 @@ void mixture_normal(inout State st)
           grad += e * u * ib;
         }
       }
+    }
+  }
+  if (sdf && s0 > 0.0) { /* _cpu_surface.fit_gradient */
+    vec3 m = s1 / s0;
+    mat3 c = s2 / s0 - outerProduct(m, m);
+    vec3 b = d1 / s0 - m * (d0 / s0);
+    float tr = c[0][0] + c[1][1] + c[2][2], det = determinant(c);
+    vec3 a0 = cross(c[1], c[2]), a1 = cross(c[2], c[0]), a2 = cross(c[0], c[1]); /* adj(c) */
+    grad = det > 1e-9 * tr * tr * tr ? mat3(a0, a1, a2) * b / det : vec3(0.0);
+    float slope = obj_level(st.hit_ob) / SURFACE_LEVEL; /* one layer: the layer's normal */
+    if (dot(grad, grad) < 0.25 * slope * slope) {
+      float n0 = dot(a0, a0), n1 = dot(a1, a1), n2 = dot(a2, a2);
+      grad = n0 >= n1 && n0 >= n2 ? a0 : (n1 >= n2 ? a1 : a2);
     }
   }
   st.hit_g = grad;
