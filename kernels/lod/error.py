@@ -27,114 +27,20 @@ import time
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
+from .error_pairs import (
+    _OFF,
+    _by_cell,
+    _count_pairs,
+    _fill_pairs,
+    _gather,
+    _group_reach,
+    _lut_pairs,
+    distinct_sigmas,
+)
 from .gridprep import effective_masks, finite_grid, value_range
 from .levelset import band_threshold
 
 DEFAULT_K = 4.0
-_OFF = np.int64(1 << 20)
-
-
-@njit(cache=True, inline="always")
-def _key(x, y, z):
-    return ((x + _OFF) << np.int64(42)) | ((y + _OFF) << np.int64(21)) | (z + _OFF)
-
-
-@njit(cache=True)
-def _find(keys, key):
-    i = np.searchsorted(keys, key)
-    if i < keys.shape[0] and keys[i] == key:
-        return i
-    return -1
-
-
-@njit(cache=True, inline="always")
-def _box(g, cent, sig, k, a):
-    """Gaussian g's k-sigma box along axis a in voxels: (first, last) index."""
-    r = k * sig[g, a]
-    return np.int64(np.ceil(cent[g, a] - r)), np.int64(np.floor(cent[g, a] + r))
-
-
-@njit(cache=True)
-def _cells_of(g, cent, sig, k, keys, corg, out, pos, write):
-    ix0, ix1 = _box(g, cent, sig, k, 0)
-    iy0, iy1 = _box(g, cent, sig, k, 1)
-    iz0, iz1 = _box(g, cent, sig, k, 2)
-    if ix0 > ix1 or iy0 > iy1 or iz0 > iz1:
-        return 0
-    vol = ((ix1 >> 3) - (ix0 >> 3) + 1) * ((iy1 >> 3) - (iy0 >> 3) + 1) * ((iz1 >> 3) - (iz0 >> 3) + 1)
-    n = 0
-    if vol <= keys.shape[0]:
-        for x in range(ix0 >> 3, (ix1 >> 3) + 1):
-            for y in range(iy0 >> 3, (iy1 >> 3) + 1):
-                for z in range(iz0 >> 3, (iz1 >> 3) + 1):
-                    j = _find(keys, _key(x, y, z))
-                    if j >= 0:
-                        if write:
-                            out[pos + n] = j
-                        n += 1
-    else:  # huge support (big tiles): test every cell
-        for j in range(keys.shape[0]):
-            if (corg[j, 0] + 7 >= ix0 and corg[j, 0] <= ix1 and corg[j, 1] + 7 >= iy0
-                    and corg[j, 1] <= iy1 and corg[j, 2] + 7 >= iz0 and corg[j, 2] <= iz1):
-                if write:
-                    out[pos + n] = j
-                n += 1
-    return n
-
-
-@njit(cache=True)
-def _lut_cells_of(g, cent, sig, k, lut, lmin, out, pos, write):
-    """_cells_of with the cells' indices in a dense box lut (cell lmin + (i, j, l) -> index or -1):
-    the same cells in the same order (x, then y, then z: the key order)."""
-    ix0, ix1 = _box(g, cent, sig, k, 0)
-    iy0, iy1 = _box(g, cent, sig, k, 1)
-    iz0, iz1 = _box(g, cent, sig, k, 2)
-    if ix0 > ix1 or iy0 > iy1 or iz0 > iz1:
-        return 0
-    n = 0
-    for x in range(max(ix0 >> 3, lmin[0]), min(ix1 >> 3, lmin[0] + lut.shape[0] - 1) + 1):
-        for y in range(max(iy0 >> 3, lmin[1]), min(iy1 >> 3, lmin[1] + lut.shape[1] - 1) + 1):
-            for z in range(max(iz0 >> 3, lmin[2]), min(iz1 >> 3, lmin[2] + lut.shape[2] - 1) + 1):
-                j = lut[x - lmin[0], y - lmin[1], z - lmin[2]]
-                if j >= 0:
-                    if write:
-                        out[pos + n] = j
-                    n += 1
-    return n
-
-
-@parallel_njit(cache=True)
-def _lut_pairs(cent, sig, k, lut, lmin):
-    """The pairs of a chunk of cells (lut: its cells' box): per Gaussian start, cell of each pair."""
-    m = cent.shape[0]
-    start = np.zeros(m + 1, np.int64)
-    dummy = np.zeros(1, np.int32)
-    for g in prange(m):
-        start[g + 1] = _lut_cells_of(g, cent, sig, k, lut, lmin, dummy, 0, False)
-    for g in range(m):
-        start[g + 1] += start[g]
-    pc = np.empty(start[m], np.int32)
-    for g in prange(m):
-        _lut_cells_of(g, cent, sig, k, lut, lmin, pc, start[g], True)
-    return start, pc
-
-
-@parallel_njit(cache=True)
-def _count_pairs(cent, sig, k, keys, corg):
-    m = cent.shape[0]
-    cnt = np.zeros(m, np.int64)
-    dummy = np.zeros(1, np.int64)
-    for g in prange(m):
-        cnt[g] = _cells_of(g, cent, sig, k, keys, corg, dummy, 0, False)
-    return cnt
-
-
-@parallel_njit(cache=True)
-def _fill_pairs(cent, sig, k, keys, corg, start, out):
-    for g in prange(cent.shape[0]):
-        _cells_of(g, cent, sig, k, keys, corg, out, start[g], True)
-
-
 @njit(cache=True, inline="always")
 def axis_terms(c, g, corg, cent, sig, power, cut, q, e):
     """Along each axis a, at the 8 voxel centres l of cell c: q[a, l] = d^2 and
@@ -362,7 +268,7 @@ def _cref(ref, rows, is_ls):
 
 
 def cell_keys(cells):
-    """The sort keys of leaf cells given as index >> 3 (int64 (n, 3)), as _key computes them."""
+    """The sort keys of leaf cells given as index >> 3 (int64 (n, 3)), as error_pairs._key computes them."""
     return ((cells[:, 0] + _OFF) << 42) | ((cells[:, 1] + _OFF) << 21) | (cells[:, 2] + _OFF)
 
 
@@ -415,99 +321,6 @@ def nrmse_denominator(is_ls, vmin, vmax):
     if is_ls:
         return 1.0
     return (vmax - vmin) or max(abs(vmin), abs(vmax)) or 1.0
-
-
-@parallel_njit(cache=True)
-def _group_reach(origins, gstart, offsets, sig, k):
-    """Per group, the lowest and highest cell x (index >> 3) its Gaussians' k-sigma boxes reach,
-    computed as _cells_of does."""
-    ng = gstart.shape[0] - 1
-    lo = np.full(ng, np.iinfo(np.int64).max, np.int64)
-    hi = np.full(ng, np.iinfo(np.int64).min, np.int64)
-    for gi in prange(ng):
-        for j in range(gstart[gi], gstart[gi + 1]):
-            c = np.float64(origins[gi, 0]) + np.float64(offsets[j, 0])
-            r = k * np.float64(sig[j, 0])
-            lo[gi] = min(lo[gi], np.int64(np.ceil(c - r)) >> 3)
-            hi[gi] = max(hi[gi], np.int64(np.floor(c + r)) >> 3)
-    return lo, hi
-
-
-@njit(cache=True)
-def _by_cell(start, pc, ncell):
-    """Gaussian g's cells pc[start[g]:start[g + 1]] -> (cstart, pg): the pairs grouped by cell,
-    each cell's Gaussians in increasing order (a counting sort: stable, as argsort was)."""
-    cstart = np.zeros(ncell + 1, np.int64)
-    for p in range(pc.shape[0]):
-        cstart[pc[p] + 1] += 1
-    for c in range(ncell):
-        cstart[c + 1] += cstart[c]
-    pos = cstart[:-1].copy()
-    pg = np.empty(pc.shape[0], np.int32)
-    for g in range(start.shape[0] - 1):
-        for p in range(start[g], start[g + 1]):
-            c = pc[p]
-            pg[pos[c]] = g
-            pos[c] += 1
-    return cstart, pg
-
-
-@njit(cache=True)
-def distinct_sigmas(sig, most=64):
-    """The distinct values of sig (float32 (m, 3)) as float64, and False past ``most`` of them."""
-    u = np.empty(most)
-    n = 0
-    for g in range(sig.shape[0]):
-        for a in range(3):
-            v = np.float64(sig[g, a])
-            j = 0
-            while j < n and u[j] != v:
-                j += 1
-            if j == n:
-                if n == most:
-                    return u[:n], False
-                u[n] = v
-                n += 1
-    return u[:n], True
-
-
-@parallel_njit(cache=True)
-def _gather(grp, gstart, origins, offsets, sigmas, values, amps, u):
-    """Centres and sigmas (float64, as GaussianSet.centers() and setup make them) and weights
-    of the Gaussians of groups grp, in order; with u (the set's distinct sigmas) also their
-    doubled centres (int64) and sigma ids for the axis tables, and whether every centre is on
-    the half-voxel lattice."""
-    ng = grp.shape[0]
-    first = np.zeros(ng + 1, np.int64)
-    for i in range(ng):
-        first[i + 1] = first[i] + gstart[grp[i] + 1] - gstart[grp[i]]
-    m = first[ng]
-    cent = np.empty((m, 3))
-    sig = np.empty((m, 3))
-    w = np.empty(m)
-    c2 = np.zeros((m, 3), np.int64)
-    sid = np.zeros((m, 3), np.int32)
-    off = np.zeros(ng, np.bool_)
-    for i in prange(ng):
-        gi = grp[i]
-        for j in range(gstart[gi], gstart[gi + 1]):
-            o = first[i] + j - gstart[gi]
-            w[o] = np.float64(values[j]) * np.float64(amps[j])
-            for a in range(3):
-                c = np.float64(origins[gi, a]) + np.float64(offsets[j, a])
-                s = np.float64(sigmas[j, a])
-                cent[o, a] = c
-                sig[o, a] = s
-                h = np.rint(2.0 * c)
-                if h != 2.0 * c or abs(h) >= 2.0 ** 52:
-                    off[i] = True
-                else:
-                    c2[o, a] = np.int64(h)
-                t = 0
-                while t < u.shape[0] - 1 and u[t] != s:
-                    t += 1
-                sid[o, a] = t
-    return cent, sig, w, c2, sid, not off.any()
 
 
 class _Reach:

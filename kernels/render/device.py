@@ -223,10 +223,9 @@ class CPUDevice(Device):
         return w, col
 
     def _color_weights(self, objects):
-        """The second mixture's field weights (second value x amplitude): the volumes' coloured
-        by a grid (less its background, objects.cbg: that mixture is the background where no
-        Gaussian is, as the reference mode's voxels are), the surfaces' signed distances
-        (Objects.sdf); zero elsewhere; None when no object has one."""
+        """The second mixture's field weights (second value x amplitude): the volumes coloured by a
+        grid (less its background objects.cbg, the mixture where no Gaussian is, as the reference's
+        voxels), the surfaces' signed distances (Objects.sdf); zero elsewhere; None if none."""
         sel = np.flatnonzero((objects.ctf >= 0) | (objects.sdf != 0))
         if not sel.size:
             return None
@@ -356,8 +355,8 @@ class CPUDevice(Device):
             gauss = packing.empty_gaussians()
         else:
             acc = self._gaussians()
-            ctf = objects.ctf if (objects.ctf >= 0).any() else None
-            g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, objects.ls, ctf)
+            g_w, g_col = self._gauss_weights(mode, tfs, obj_tf, obj_kind, objects.ls,
+                                             objects.ctf if (objects.ctf >= 0).any() else None)
             if self._g_rec is None or self._g_rec.shape[0] != acc.g_mu.shape[0]:
                 self._g_rec = packing.test_records(acc)
             lit = mode == Mode.PARTICLES and (objects.lit != 0).any()
