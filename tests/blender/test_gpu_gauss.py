@@ -2,7 +2,8 @@
 paper on a fog volume, a level set (field: its surface; particles, paper: a shell), two
 overlapping objects and Gaussians of varied, anisotropic sizes (whose 1/sigma codes round)
 (PSNR >= 50 dB, Depth and Value passes); rays with more chords than the shader's hit slots, whose
-tiles the CPU device draws; the packed Gaussian words bit for bit through upload and texelFetch."""
+tiles the CPU device draws; a level set whose faces keep one layer of voxels (field_crossing's
+single-layer rule); the packed Gaussian words bit for bit through upload and texelFetch."""
 
 import numpy as np
 import pytest
@@ -162,3 +163,41 @@ def test_field_sphere_surface_on_the_gpu(gpu, cpu):
     over, short, centre, half, _ = S.sphere_errors(gpu.render(S.lit([S.surface(grid, gs)], "field"),
                                                               S.camera(), S.TF))
     assert over <= 1.0 and short <= 1.0 and centre < 2.0 and half < 2.0, (over, short, centre, half)
+
+
+@pytest.fixture(scope="module")
+def one_layer_cube(tmp_path_factory):
+    """A cube level set whose faces lie 0.9 voxel past a layer of voxel centres: the band keeps one
+    layer of voxels under each face (distance 0.1, never 0), so every hit on it is a passage
+    through a single layer (_cpu_surface.field_crossing's rule), at Medium and High."""
+    from vdb_fixtures import write_grid
+
+    from kernels.lod import build_lod
+    from kernels.vdb import read_vdb
+
+    g = np.arange(33)
+    X, Y, Z = np.meshgrid(g, g, g, indexing="ij")
+    phi = np.max([np.abs(X - 16.0), np.abs(Y - 16.0), np.abs(Z - 16.0)], axis=0) - 8.9
+    path = write_grid(tmp_path_factory.mktemp("layer") / "cube_ls.vdb", np.clip(phi, -3, 3),
+                      name="surface", background=3.0, grid_class="level set", tolerance=1e-6)
+    grid = read_vdb(str(path)).grids[0]
+    return grid, {lod: build_lod(grid, lod) for lod in ("medium", "high")}
+
+
+@pytest.mark.parametrize("mode", ["field", "particles"])
+@pytest.mark.parametrize("lod", ["medium", "high"])
+def test_single_layer_surface_matches_the_cpu(gpu, cpu, one_layer_cube, lod, mode):
+    """Seen along an axis and obliquely: the CPU hits every pixel inside the cube's faces (no
+    holes where the distances never reach 0) and the GPU's image equals it (>= 50 dB)."""
+    grid, sets = one_layer_cube
+    sc = RenderScene([RenderObject(sets[lod], grid=grid, surface=True)], mode=mode)
+    for d in ((0.0, 1.0, 0.0), (0.35, 1.0, -0.3)):
+        cam = Camera.frame_box(np.full(3, 6.5), np.full(3, 25.5), 24, 24, direction=d)
+        want = cpu.render(sc, cam, TF)
+        got = gpu.render(sc, cam, TF)
+        assert gpu.stats.get("fallback") is None and gpu.stats["overflow_tiles"] == 0
+        if d[0] == 0.0:  # the face fills the frame's middle: no pixel there misses it
+            assert (want["Combined"][6:18, 6:18, 3] > 0.99).all()
+        db = psnr(got["Combined"], want["Combined"])
+        print(f"one-layer cube {lod} {mode} {d}: {db:.1f} dB")
+        assert db >= GPU_MIN_DB, f"{lod} {mode} {d}: {db:.1f} dB"
