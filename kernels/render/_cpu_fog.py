@@ -11,6 +11,7 @@ import math
 
 from ..jit import njit
 from ._cpu_math import BG_DEPTH, DEPTH, RAD, SEGS, TMIN, TR, VSUM, VWT, _hot
+from ._cpu_surface import brick_xyz, trilinear
 
 # the series of 1 - exp(-x) = sum c_k x^(k + 1), c_k = (-1)^k / (k + 1)!, to 12 terms
 C0, C1, C2, C3, C4, C5, C6, C7, C8, C9, C10, C11 = ((-1.0) ** k / math.factorial(k + 1) for k in range(12))
@@ -53,23 +54,13 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
         if ns < 1:
             ns = 1
         h = (p1 - p0) / ns
-        bx = cell_xyz[cid, 0] * 8 - 1
-        by = cell_xyz[cid, 1] * 8 - 1
-        bz = cell_xyz[cid, 2] * 8 - 1
+        cxyz = cell_xyz[cid]
         B = bricks[cid]
         for i in range(ns):
             segs += 1
             t = p0 + (i + 0.5) * h
-            fx = min(max(ox + t * dx - bx, 0.0), 8.999999)
-            fy = min(max(oy + t * dy - by, 0.0), 8.999999)
-            fz = min(max(oz + t * dz - bz, 0.0), 8.999999)
-            i0, j0, k0 = int(fx), int(fy), int(fz)
-            ax, ay, az = fx - i0, fy - j0, fz - k0
-            c00 = B[i0, j0, k0] * (1 - ax) + B[i0 + 1, j0, k0] * ax
-            c10 = B[i0, j0 + 1, k0] * (1 - ax) + B[i0 + 1, j0 + 1, k0] * ax
-            c01 = B[i0, j0, k0 + 1] * (1 - ax) + B[i0 + 1, j0, k0 + 1] * ax
-            c11 = B[i0, j0 + 1, k0 + 1] * (1 - ax) + B[i0 + 1, j0 + 1, k0 + 1] * ax
-            val = (c00 * (1 - ay) + c10 * ay) * (1 - az) + (c01 * (1 - ay) + c11 * ay) * az
+            fx, fy, fz = brick_xyz(cxyz, ox + t * dx, oy + t * dy, oz + t * dz)
+            val = trilinear(B, fx, fy, fz)
             if val != val:
                 continue  # NaN: no medium
             # the transfer function's table position (_cpu_math.tf_x, lut_pos), scaled once per ray

@@ -137,7 +137,7 @@ def brick_xyz(cxyz, x, y, z):
     return fx, fy, fz
 
 
-@njit(**_hot)
+@njit(**_hot, inline="always")
 def trilinear(B, fx, fy, fz):
     i0, j0, k0 = int(fx), int(fy), int(fz)
     ax, ay, az = fx - i0, fy - j0, fz - k0
