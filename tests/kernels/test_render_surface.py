@@ -227,7 +227,8 @@ def test_volumes_in_front_behind_and_around(dev, sphere, mode):
     a = around["Combined"]
     assert (a[core, 3] == 1.0).all()
     assert (np.abs(a[core, :3] - alone["Combined"][core, :3]) > 1e-3).any()
-    np.testing.assert_allclose(around["Depth"][core], alone["Depth"][core], atol=1e-9)
+    # the surface depth, to float32 rounding (the GPU marches the fog in other steps)
+    np.testing.assert_allclose(around["Depth"][core], alone["Depth"][core], rtol=3e-7)
 
 
 def test_paper_mode_and_shell_option_keep_the_shell(dev, sphere):

@@ -1,0 +1,46 @@
+"""Kernel tests that judge images by analytic answers (tests/kernels), run again on the GPU device
+(llvmpipe here): each test is imported from its kernel module and gets this module's device
+fixtures, and every frame must be drawn by the GPU itself (a frame handed to the CPU fails).
+Surfaces: the sphere's silhouette, normal and depth, lights, volumes in front of, behind and around
+a surface; clipping: planes along and across the view, two halves, boxes."""
+import pytest
+from test_render_clip import (  # noqa: F401
+    blob,
+    test_box,
+    test_plane_across_view_equals_camera_clip,
+    test_plane_along_view_cuts_columns,
+    test_two_halves_make_the_whole,
+)
+from test_render_surface import (  # noqa: F401
+    sphere,
+    test_headlight_and_point_light,
+    test_reference_sphere_silhouette_normal_depth,
+    test_volumes_in_front_behind_and_around,
+)
+
+
+class OnGPU:
+    """The GPU device, failing any frame it hands to the CPU device."""
+
+    def __init__(self, device):
+        self.device = device
+
+    def render(self, *args, **kw):
+        out = self.device.render(*args, **kw)
+        assert "fallback" not in self.device.stats, f"drawn by the CPU: {self.device.stats['fallback']}"
+        assert self.device.stats.get("gpu"), "no GPU named in the stats"
+        return out
+
+    def __getattr__(self, name):
+        return getattr(self.device, name)
+
+
+@pytest.fixture(scope="module")
+def dev(gpu):
+    return OnGPU(gpu)
+
+
+@pytest.fixture(scope="module")
+def devices(gpu):
+    """As the kernel tests' pair: lists built on the device, and the CPU's lists uploaded."""
+    return {True: OnGPU(gpu), False: OnGPU(type(gpu)(gpu_tiles=False))}
