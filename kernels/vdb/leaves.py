@@ -7,6 +7,8 @@ The scan and the scatter are plain Python written for numba; without numba they 
 and every chunk goes through the Python modules.
 """
 
+import mmap
+
 import numpy as np
 
 from .codec import COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC, COMPRESS_ZIP, HALF_LUT, decompress
@@ -392,23 +394,27 @@ def _decode_parallel(ntasks, *args):
 _HALF_BITS = HALF_LUT.view(np.uint32)
 
 
+BLOCK_LEAVES = 1 << 14  # leaves decoded between releases of their file pages (32 MB of values)
+
+
 def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
     """Decompress every leaf chunk and scatter into (N, 512, ncomp) float32.
 
     With ``magnitudes`` (an (N, 512) float32 array) vec3 grids also get their per-voxel length.
     Blosc frames are decoded inside the compiled loop and zip chunks by C zlib in a compiled
     loop where possible; whatever those decline goes through the Python modules, which also
-    produce the error for a corrupt chunk.
+    produce the error for a corrupt chunk. Leaves go in blocks of BLOCK_LEAVES, in file order:
+    a zip pool holds one block, and the file pages a block has read are handed back (the peak is
+    the values, not values plus file).
     """
     n = len(masks)
     counts = t["counts"]
     chunk_len = t["chunk_len"]
     chunk_off = t["chunk_off"]
     nbytes = counts * et.stored_size
-    packed = np.nonzero(chunk_len > 0)[0]
     double = not et.half and et.full.itemsize == 8
-    blosc_inline = bool(flags & COMPRESS_BLOSC) and HAVE_NUMBA and not double
     if double:  # rare: gather every chunk, convert to float32 once, then decode as float32
+        packed = np.nonzero(chunk_len > 0)[0]
         pool, pool_start = _pool_for(np.arange(n), nbytes, n)
         _decompress_all(cur, t, packed, pool, pool_start, flags, et)
         _copy_raw(cur.arr, chunk_off, chunk_len, pool, pool_start)
@@ -416,17 +422,7 @@ def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
         pool_start = pool_start // 2
         chunk_len = np.ones(n, np.int64)
         nbytes = nbytes // 2
-    elif blosc_inline or not len(packed):
-        pool, pool_start = _pool_for(packed[:0], nbytes, n)
-    else:  # zip (or blosc without numba): inflate into a pool first
-        pool, pool_start = _pool_for(packed, nbytes, n)
-        left = packed
-        if flags & COMPRESS_ZIP:
-            st = inflate_all(cur.arr, packed, chunk_off, chunk_len, nbytes, pool, pool_start,
-                             len(packed) >= PARALLEL_LEAVES)
-            if st is not None:
-                left = packed[st[packed] != 0]
-        _decompress_all(cur, t, left, pool, pool_start, flags, et)
+    zip_pool = bool(flags & COMPRESS_ZIP) or (bool(flags & COMPRESS_BLOSC) and not HAVE_NUMBA)
     kind = 0 if et.half else 1
     bg = np.asarray(background, np.float64).reshape(et.ncomp)
     out = np.empty((n, 512, et.ncomp), np.float32)
@@ -441,10 +437,42 @@ def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
                t["seloff"], bg, et.full.itemsize, out.view(np.uint32).reshape(n, 512 * et.ncomp),
                out, magnitudes, status)
 
-    run(np.arange(n), pool, pool_start)
+    for a in range(0, n, BLOCK_LEAVES):
+        ids = np.arange(a, min(n, a + BLOCK_LEAVES))
+        if not double:
+            packed = ids[chunk_len[ids] > 0] if zip_pool else ids[:0]
+            pool, pool_start = _pool_for(packed, nbytes, n)
+            _inflate(cur, t, packed, pool, pool_start, nbytes, flags, et)
+        run(ids, pool, pool_start)
+        if not double and ids[-1] + 1 < n:
+            _release(cur.buf, int(chunk_off[ids[-1] + 1]))
     declined = np.nonzero(status)[0]
     if len(declined):  # frames the compiled decoder would not take: the blosc module decides
         pool, pool_start = _pool_for(declined, nbytes, n)
         _decompress_all(cur, t, declined, pool, pool_start, flags, et)
         run(declined, pool, pool_start)
     return out
+
+
+def _inflate(cur, t, packed, pool, pool_start, nbytes, flags, et):
+    """Zip chunks of ``packed`` into the pool (C zlib from a compiled loop where found), the rest
+    (and blosc without numba) by the Python modules."""
+    left = packed
+    if flags & COMPRESS_ZIP and len(packed):
+        st = inflate_all(cur.arr, packed, t["chunk_off"], t["chunk_len"], nbytes, pool, pool_start,
+                         len(packed) >= PARALLEL_LEAVES)
+        if st is not None:
+            left = packed[st[packed] != 0]
+    _decompress_all(cur, t, left, pool, pool_start, flags, et)
+
+
+def _release(buf, upto):
+    """Hand back the mapped file pages wholly before byte ``upto`` (read again from the page cache
+    if touched later): the mapping's resident size stays one block, not the whole file."""
+    madvise = getattr(buf, "madvise", None)
+    dontneed = getattr(mmap, "MADV_DONTNEED", None)
+    if madvise is None or dontneed is None:
+        return
+    end = upto - upto % mmap.PAGESIZE
+    if end > 0:
+        madvise(dontneed, 0, end)
