@@ -394,7 +394,7 @@ def _decode_parallel(ntasks, *args):
 _HALF_BITS = HALF_LUT.view(np.uint32)
 
 
-BLOCK_LEAVES = 1 << 14  # leaves decoded between releases of their file pages (32 MB of values)
+BLOCK_LEAVES = 1 << 12  # leaves decoded between releases of their file pages (8 MB of values)
 
 
 def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
