@@ -394,7 +394,8 @@ def _decode_parallel(ntasks, *args):
 _HALF_BITS = HALF_LUT.view(np.uint32)
 
 
-BLOCK_LEAVES = 1 << 12  # leaves decoded between releases of their file pages (8 MB of values)
+BLOCK_LEAVES = 1 << 15  # leaves decoded between releases of their file pages (64 MB of values;
+# each block is one parallel region, which on a busy machine may wait a time slice for a thread)
 
 
 def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
