@@ -114,6 +114,12 @@ def scene_pair(fire, mode, lit=False):
     return own, other
 
 
+@pytest.fixture(scope="module")
+def dev():
+    """The device under test (tests/blender/test_gpu_twins.py runs the image tests on the GPU's)."""
+    return CPUDevice()
+
+
 CAM = Camera.frame_box(np.array([-0.1, -0.1, -0.1]), np.array([3.3, 2.5, 2.5]), 40, 30,
                        direction=(1.0, 0.8, -0.6))
 TF = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=3.0)
@@ -121,12 +127,12 @@ TF = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=3.0)
 
 @pytest.mark.parametrize("lit", [False, True], ids=["emission", "lit"])
 @pytest.mark.parametrize("mode", MODES)
-def test_second_grid_changes_colour_not_alpha(fire, mode, lit):
+def test_second_grid_changes_colour_not_alpha(dev, fire, mode, lit):
     if lit and mode == "paper":
         pytest.skip("paper mode draws emission")
     own, other = scene_pair(fire, mode, lit)
-    a = CPUDevice().render(own, CAM, TF)
-    b = CPUDevice().render(other, CAM, TF)
+    a = dev.render(own, CAM, TF)
+    b = dev.render(other, CAM, TF)
     alpha = a["Combined"][..., 3]
     assert (alpha > 0.05).sum() > 100
     # particles: the colour spread decides where intervals close; the optical depth is exact
@@ -137,7 +143,7 @@ def test_second_grid_changes_colour_not_alpha(fire, mode, lit):
 
 
 @pytest.mark.parametrize("mode", MODES)
-def test_constant_colour_grid_gives_one_hue(fire, mode):
+def test_constant_colour_grid_gives_one_hue(dev, fire, mode):
     """A colour grid of one value everywhere (its background: no voxels at all): every pixel has
     the colour map's colour at that value, whatever the opacity (premultiplied rgb / alpha);
     in field mode too, whose colour mixture is the grid's background away from the Gaussians."""
@@ -148,7 +154,7 @@ def test_constant_colour_grid_gives_one_hue(fire, mode):
     ctf = TransferFunction.from_colormap("inferno", 0.0, 1.0, alpha="constant")
     m = np.diag([0.1, 0.1, 0.1, 1.0])
     sc = RenderScene([RenderObject(gs, m, grid=density, color_tf=ctf, color_grid=const)], mode=mode)
-    img = CPUDevice().render(sc, CAM, TF)["Combined"]
+    img = dev.render(sc, CAM, TF)["Combined"]
     a = img[..., 3]
     sel = a > 0.05
     assert sel.sum() > 100

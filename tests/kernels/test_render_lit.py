@@ -74,9 +74,15 @@ def quadrature(cam, tf, mu, sig, w, light, shading, thr, dt=0.01):
     return out.reshape(cam.height, cam.width, 3)
 
 
-def render(objs, mode, cam, tf, **kw):
+def render(dev, objs, mode, cam, tf, **kw):
     scene = RenderScene(objs, mode=mode, passes=(), **kw)
-    return CPUDevice().render(scene, cam, tf)["Combined"].astype(np.float64)
+    return dev.render(scene, cam, tf)["Combined"].astype(np.float64)
+
+
+@pytest.fixture(scope="module")
+def dev():
+    """The device under test (tests/blender/test_gpu_twins.py runs these tests on the GPU's)."""
+    return CPUDevice()
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +93,7 @@ def blob():
 
 
 @pytest.mark.parametrize("n", [1, 3], ids=["one-gaussian", "mixture"])
-def test_lit_field_matches_quadrature(blob, n):
+def test_lit_field_matches_quadrature(dev, blob, n):
     """A sun lights one Gaussian (and a mixture of three): the field mode's lit image matches the
     numerical integral along each ray with the normal from finite differences of the mixture (so
     the kernels' analytic gradient is the mixture's)."""
@@ -95,9 +101,9 @@ def test_lit_field_matches_quadrature(blob, n):
     mu, sig, w = MU[:n], SIG[:n], W[:n]
     gs = gaussian_set(mu, sig, w)
     obj = RenderObject(gs, shading="lit")
-    img = render([obj], "field", cam, tf, lights=(SUN,), shading=SHADING, lit_threshold=0.0)
+    img = render(dev, [obj], "field", cam, tf, lights=(SUN,), shading=SHADING, lit_threshold=0.0)
     ref = quadrature(cam, tf, mu, sig, w, SUN, SHADING, 0.0)
-    unlit = render([RenderObject(gs)], "field", cam, tf, lights=(SUN,), shading=SHADING)
+    unlit = render(dev, [RenderObject(gs)], "field", cam, tf, lights=(SUN,), shading=SHADING)
     scale = ref.max()
     err = np.abs(img[..., :3] - ref).max() / scale
     assert err < 0.01, err
@@ -105,7 +111,7 @@ def test_lit_field_matches_quadrature(blob, n):
     assert np.abs(unlit[..., :3] - ref).max() / scale > 0.1
 
 
-def test_particles_lit_one_gaussian(blob):
+def test_particles_lit_one_gaussian(dev, blob):
     """Particles mode shades a lit volume's chord once, at its closest approach to the Gaussian's
     centre, on the mixture's gradient there (here the Gaussian's own): with no overlap the pixel is
     alpha x Blinn-Phong(colour, gradient at that point), alpha unchanged."""
@@ -113,8 +119,8 @@ def test_particles_lit_one_gaussian(blob):
     mu, sig, w = MU[:1], SIG[:1], W[:1]
     gs = gaussian_set(mu, sig, w)
     kw = dict(lights=(SUN,), shading=SHADING, lit_threshold=0.0)
-    lit = render([RenderObject(gs, shading="lit")], "particles", cam, tf, **kw)
-    emit = render([RenderObject(gs)], "particles", cam, tf, **kw)
+    lit = render(dev, [RenderObject(gs, shading="lit")], "particles", cam, tf, **kw)
+    emit = render(dev, [RenderObject(gs)], "particles", cam, tf, **kw)
     np.testing.assert_array_equal(lit[..., 3], emit[..., 3])
     o, d = generate_rays(cam)
     u, v = (o - mu) / sig, d / sig
@@ -151,7 +157,7 @@ def test_lit_gradients_are_the_other_gaussians_field():
     np.testing.assert_array_equal(got[:, 3], fw)
 
 
-def test_particles_lit_close_to_field_lit():
+def test_particles_lit_close_to_field_lit(dev):
     """On a smooth fog volume at Medium, lit particles stay close to lit field mode (both shade on
     the mixture's gradient): far closer than the unlit particles image is."""
     g = np.arange(24)
@@ -162,16 +168,16 @@ def test_particles_lit_close_to_field_lit():
     cam = Camera.frame_box([0.0] * 3, [24.0] * 3, 40, 40, direction=(0.3, 1.0, -0.2))
     tf = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=0.3)
     kw = dict(lights=(SUN,), shading=SHADING)
-    field = render([RenderObject(gs, shading="lit")], "field", cam, tf, **kw)
-    lit = render([RenderObject(gs, shading="lit")], "particles", cam, tf, **kw)
-    emit = render([RenderObject(gs)], "particles", cam, tf, **kw)
+    field = render(dev, [RenderObject(gs, shading="lit")], "field", cam, tf, **kw)
+    lit = render(dev, [RenderObject(gs, shading="lit")], "particles", cam, tf, **kw)
+    emit = render(dev, [RenderObject(gs)], "particles", cam, tf, **kw)
     e_lit = np.abs(lit[..., :3] - field[..., :3]).mean()
     e_emit = np.abs(emit[..., :3] - field[..., :3]).mean()
     print("lit particles vs lit field", e_lit, "unlit", e_emit)
     assert e_lit < 0.35 * e_emit, (e_lit, e_emit)
 
 
-def test_threshold_leaves_homogeneous_regions_unlit(blob):
+def test_threshold_leaves_homogeneous_regions_unlit(dev, blob):
     """Pixels whose ray meets no sample with a gradient above the threshold are bit-identical to
     the emission image; those that meet gradients well above it differ."""
     cam, tf = blob
@@ -180,8 +186,8 @@ def test_threshold_leaves_homogeneous_regions_unlit(blob):
     frac = 0.05
     thr = frac * (tf.vmax - tf.vmin)
     kw = dict(lights=(SUN,), shading=SHADING, lit_threshold=frac)
-    lit = render([RenderObject(gs, shading="lit")], "field", cam, tf, **kw)
-    emi = render([RenderObject(gs)], "field", cam, tf, **kw)
+    lit = render(dev, [RenderObject(gs, shading="lit")], "field", cam, tf, **kw)
+    emi = render(dev, [RenderObject(gs)], "field", cam, tf, **kw)
     o, d = generate_rays(cam)
     t = np.linspace(np.linalg.norm(o[0]) - 12, np.linalg.norm(o[0]) + 12, 4001)
     gmax = np.zeros(o.shape[0])
@@ -198,7 +204,7 @@ def test_threshold_leaves_homogeneous_regions_unlit(blob):
     assert not same[high].any()
     # a threshold nothing reaches: the lit image is the emission image
     kw["lit_threshold"] = 1e9
-    assert np.array_equal(render([RenderObject(gs, shading="lit")], "field", cam, tf, **kw), emi)
+    assert np.array_equal(render(dev, [RenderObject(gs, shading="lit")], "field", cam, tf, **kw), emi)
 
 
 def ball_grid(n=16, s=2.5):
@@ -213,7 +219,7 @@ def placed(m_shift):
     return m
 
 
-def shadow_ratio(mode, receiver, blocker, density, cam):
+def shadow_ratio(dev, mode, receiver, blocker, density, cam):
     """Receiver pixels' brightness with the blocker at `density` over that with it at 0 (ambient
     and specular off, every sample lit: the ratio is the blocker's transmittance)."""
     tf = TransferFunction.from_colormap("grayscale", 0.0, 1.0, density=0.5)
@@ -224,7 +230,7 @@ def shadow_ratio(mode, receiver, blocker, density, cam):
         btf = TransferFunction(black, 0.0, 1.0, density=dens)
         objs = [RenderObject(*receiver, shading="lit", shadows=True),
                 RenderObject(*blocker, tf=btf)]
-        imgs.append(render(objs, mode, cam, tf, lights=(Light("sun", (-1.0, 0.0, 0.0)),),
+        imgs.append(render(dev, objs, mode, cam, tf, lights=(Light("sun", (-1.0, 0.0, 0.0)),),
                            shading=(0.0, 1.0, 0.0, 1.0), lit_threshold=0.0))
     a, b = imgs[0][..., 0], imgs[1][..., 0]
     sel = a > 0.05 * a.max()
@@ -232,7 +238,7 @@ def shadow_ratio(mode, receiver, blocker, density, cam):
     return b[sel] / a[sel]
 
 
-def test_shadows_reference_slab():
+def test_shadows_reference_slab(dev):
     """Reference mode: a 4-voxel slab of extinction D between the sun and a lit ball darkens every
     lit pixel by exp(-4 D) (the slab is off the camera's view)."""
     g = ball_grid()
@@ -240,11 +246,11 @@ def test_shadows_reference_slab():
     receiver = (build_lod(g, "low"), placed((-7.5, -7.5, -7.5)), g)
     blocker = (build_lod(slab, "low"), placed((30.0, -28.0, -28.0)), slab)
     cam = Camera.frame_box([-5.0] * 3, [5.0] * 3, 24, 24, direction=(0.0, 1.0, 0.0))
-    r = shadow_ratio("reference", receiver, blocker, 0.3, cam)
+    r = shadow_ratio(dev, "reference", receiver, blocker, 0.3, cam)
     np.testing.assert_allclose(r, np.exp(-4 * 0.3), rtol=0.02)
 
 
-def test_shadows_field_gaussian():
+def test_shadows_field_gaussian(dev):
     """Field mode: a wide Gaussian blocker (sigma 10, extinction D at its centre) between the sun
     and a small lit Gaussian: the shadow ray's optical depth is D sqrt(2 pi) 10 exp(-b^2 / 200)
     (b: the ray's distance from the blocker's centre, at most ~5 voxels here)."""
@@ -253,7 +259,7 @@ def test_shadows_field_gaussian():
     cam = Camera.frame_box([-3.0] * 3, [3.0] * 3, 24, 24, direction=(0.0, 1.0, 0.0))
     dens = 0.04
     tau0 = dens * np.sqrt(2 * np.pi) * 10.0 * 0.9973  # the support cuts at 3 sigma
-    r = shadow_ratio("field", recv, blk, dens, cam)
+    r = shadow_ratio(dev, "field", recv, blk, dens, cam)
     assert r.min() > np.exp(-tau0) * 0.98 and r.max() < np.exp(-tau0 * np.exp(-25 / 200)) * 1.02
 
 
