@@ -14,6 +14,23 @@ int nm;
 float s_a, s_last, s_rho, s_cend;
 vec3 cb_lo, cb_hi;  /* the open members' colour bounds */
 
+#ifdef LIT
+/* a lit volume's chord colour (_cpu_lit.lit_member): col shaded once at its closest approach ts
+ * (qq: the whitened squared distance there) on the mixture's gradient, the Gaussian's own
+ * (analytic) plus its neighbours' at its centre (g_grad: xyz, and its own field weight in w) */
+vec3 lit_chord(Gauss G, int g, float ts, float qq, vec3 col)
+{
+  int ob = n_obj == 1 ? 0 : G.ob;
+  if (g_lit[ob] == 0) {
+    return col;
+  }
+  vec4 n = texel(g_grad, g);
+  vec3 x = g_ro[ob] + ts * g_rd[ob];
+  vec3 grad = n.xyz - n.w * exp(-0.5 * qq) * (x - G.mu) * G.iv * G.iv;
+  return shade_sample(ob, col, grad, x, lit_ray, ts);
+}
+#endif
+
 void reset_bounds() { cb_lo = vec3(INF); cb_hi = vec3(-INF); }
 void widen(int h) { cb_lo = min(cb_lo, h_col[h]); cb_hi = max(cb_hi, h_col[h]); }
 float spread_of() { vec3 d = cb_hi - cb_lo; return max(d.x, max(d.y, d.z)); }
@@ -165,6 +182,9 @@ bool trace_tiles(float tn, float tf, inout State st) {
     h_sa[h] = SQRT_HALF * aa * ra;
     h_c[h] = c.w * SQRT_HALF_PI * ra;
     h_col[h] = g_color(G); h_val[h] = G.val; h_vw[h] = G.has_val ? 1.0 : 0.0;
+#ifdef LIT
+    h_col[h] = lit_chord(G, g, c.z, qq, h_col[h]);
+#endif
     queue_insert(c.x, g, h);
     nh++;
   }
@@ -174,6 +194,9 @@ bool trace_tiles(float tn, float tf, inout State st) {
 
 void trace_mode(Ray r, inout State st)
 {
+#ifdef LIT
+  lit_ray = r;
+#endif
   if (!trace_tiles(r.tn, r.tf, st)) {
     st.depth = OVERFLOW_DEPTH;  /* the device draws this pixel's tile on the CPU */
   }
