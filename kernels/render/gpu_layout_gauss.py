@@ -7,7 +7,7 @@ channel k % 4 (``flat``). Integers travel as exact floats, so each must stay bel
 (``check_exact`` says where one does not; the device then draws that frame on the CPU).
 
 Tables (name: rows x columns, what):
-- g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table): texel 0 = centre (3) and
+- g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table of unlit frames): texel 0 = centre (3) and
   the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
   factor); texel 1 = [1/sigma x, y, z as 18-bit floats with the object (4 bits) and "has a
   value" (1 bit) in two words (size_words), w, value (0 when NaN; field mode: the weight of the

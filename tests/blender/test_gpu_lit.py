@@ -2,7 +2,8 @@
 approach on the mixture's gradient, the neighbours' part from the CPU per sync; field: the
 mixture's analytic gradient at each sample) against the CPU device (llvmpipe here): a written fog
 .vdb and the bundled Mantaflow smoke, two LODs each, lit by a sun and a point light, with and
-without shadows (PSNR >= LIT_MIN_DB, no fallback, no tile drawn on the CPU); and the gradient
+without shadows (PSNR >= LIT_MIN_DB, no fallback, no tile drawn on the CPU); a lit object
+overlapping an emission one; and the gradient
 threshold on the GPU: the lit image equals the emission one where no sample's (chord's) gradient
 passes it and differs where one does."""
 
@@ -89,6 +90,28 @@ def test_lit_gauss_modes_match_cpu(gpu, cpu, request, data, mode, lod, shadows):
     print(f"{data} {mode} {lod} {'lit + shadows' if shadows else 'lit'}: GPU vs CPU {db:.1f} dB "
           f"(emission/unshadowed vs lit {psnr(before, want):.1f} dB)")
     assert db >= LIT_MIN_DB, f"{data} {mode} {lod} shadows={shadows}: PSNR {db:.1f} dB"
+
+
+@pytest.mark.parametrize("mode", ["particles", "field"])
+def test_lit_and_emission_objects_overlapping(gpu, cpu, written, mode):
+    """Two overlapping objects, a lit one with shadows (rotated and scaled: the normal goes through
+    its world matrix) and an emission one: the GPU's image equals the CPU's."""
+    grid, sets = written
+    m = np.eye(4)
+    c, s = np.cos(0.5), np.sin(0.5)
+    m[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.diag([1.2, 0.9, 1.0])
+    m[:3, 3] = (8.0, -3.0, 2.0)
+    lo, hi = np.full(3, -4.0), np.full(3, 36.0)
+    sc = RenderScene([RenderObject(sets["medium"], matrix_world=m, shading="lit", shadows=True),
+                      RenderObject(sets["low"], tf=TransferFunction.from_colormap("magma", 0, 1.0, density=0.3))],
+                     mode=mode, lights=lights(lo, hi))
+    cam = Camera.frame_box(lo, hi, W, W, direction=(0.3, 1.0, -0.2))
+    want = cpu.render(sc, cam, TF)["Combined"]
+    got = gpu.render(sc, cam, TF)["Combined"]
+    assert gpu.stats.get("fallback") is None and gpu.stats["overflow_tiles"] == 0
+    db = psnr(got, want)
+    print(f"two objects {mode}: GPU vs CPU {db:.1f} dB")
+    assert db >= LIT_MIN_DB, db
 
 
 # -- the gradient threshold: one Gaussian, a sun (test_render_lit's set-up) --------------------

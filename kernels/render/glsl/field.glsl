@@ -6,7 +6,8 @@
  * (field_crossing: with signed distances, the zero of their normalised mixture; else the 0.5
  * occupancy); the normal from the Gaussians around the hit
  * (mixture_normal). Entries wait in PCAP slots, active chords in PCAP more; a ray that needs
- * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. */
+ * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. With LIT (lit volumes in the
+ * frame), each lit sample is shaded on the mixture's analytic gradient (lit_enter, lit_sample). */
 #define NORMAL_BLUR 1.0
 #define NORMAL_REACH 4.0
 #define SDF_OCCUPANCY 0.25

@@ -5,7 +5,8 @@
  * past its exit. When every slot is taken the ray sweeps up to the next candidate's entry bound
  * (all entries before it are known, and the sweep's result does not depend on when it runs);
  * if that frees none, the pixel's depth is OVERFLOW_DEPTH and the device draws its tile on the
- * CPU. */
+ * CPU. With LIT (lit volumes in the frame), a lit chord's colour is shaded as it is found
+ * (lit_chord). */
 float h_s[PCAP], h_e[PCAP], h_ts[PCAP], h_sa[PCAP], h_c[PCAP], h_pk[PCAP], h_fa[PCAP], h_fb[PCAP];
 vec3 h_col[PCAP];
 float h_val[PCAP], h_vw[PCAP];
