@@ -59,7 +59,8 @@ def shader(mode, spec, textures, ints):
 
     names = tuple(sorted(textures))
     cap = object_cap(ints["n_obj"])
-    key = (mode, cap, tuple((n, _kind(textures[n])) for n in names), tuple(sorted(ints)))
+    key = (mode, cap, tuple((n, _kind(textures[n])) for n in names), tuple(sorted(ints)),
+           tuple(spec.defines))
     sh = _SHADERS.get(key)
     if sh is not None:
         return sh

@@ -5,8 +5,12 @@ rows and a readback; ``render_texture`` leaves the image on the GPU (the viewpor
 
 Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, inout State st)``,
 its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
-device does not draw (lit volumes in a mode without ``lit``; modes without an entry) are said in
-``fallback(frame)``: frames the GPU cannot draw exactly (see there) go to the CPU device.
+device does not draw (modes without an entry) are said in ``fallback(frame)``: frames the GPU
+cannot draw exactly (see there) go to the CPU device.
+
+Lit volumes are drawn in every mode that has them (reference, particles, field; paper has none):
+the shaders are then compiled with LIT (the Gaussian modes' shading code, common.glsl's
+shade_sample), the shadow grids and particles' centre gradients come from the CPU device's frame.
 
 The Gaussian modes' screen-tile lists are built here on the GPU (tiles.py; the CPU device's frame
 then has none: ``tiles_elsewhere``); lists too long for the GPU come from the CPU device, and a
@@ -25,13 +29,12 @@ from ...kernels.render import gpu_layout, gpu_layout_gauss, gpu_layout_tiles  # 
 from . import compute, context, tiles
 
 # glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
-# ONE_PER_GROUP: one pixel per work group on llvmpipe); lit: whether it shades lit volumes (else
-# such frames go to the CPU device)
-ModeSpec = namedtuple("ModeSpec", "glsl defines lit")
-MODES = {"reference": ModeSpec("reference.glsl", ("WALK",), True),
-         "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",), False),
-         "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP"), False),
-         "paper": ModeSpec(("gauss.glsl", "paper.glsl"), ("ONE_PER_GROUP",), False)}
+# ONE_PER_GROUP: one pixel per work group on llvmpipe)
+ModeSpec = namedtuple("ModeSpec", "glsl defines")
+MODES = {"reference": ModeSpec("reference.glsl", ("WALK",)),
+         "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",)),
+         "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP")),
+         "paper": ModeSpec(("gauss.glsl", "paper.glsl"), ("ONE_PER_GROUP",))}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 NO_LISTS = "no screen-tile lists"  # the fallback's word when neither device's lists fit
 
@@ -79,9 +82,6 @@ class GPUDevice(kdevice.Device):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
         if (np.asarray(frame.objects.ctf) >= 0).any():
             return "an object coloured by a second grid"
-        spec = MODES.get(Mode(int(frame.mode)).name.lower())
-        if spec is not None and not spec.lit and (np.asarray(frame.objects.lit) != 0).any():
-            return "lit volumes"
         if int(frame.mode) <= Mode.PAPER:
             return gpu_layout_gauss.unsupported(frame)
         return None
@@ -112,7 +112,7 @@ class GPUDevice(kdevice.Device):
         """The frame's uploaded tables (geometry reused while the sync is the same)."""
         name, spec = self._spec(frame)
         geo_fn, frame_fn = gpu_layout.MODE_TABLES[name]
-        gkey = (self.cpu._sync_count, name)
+        gkey = (self.cpu._sync_count, name, gpu_layout_gauss.lit(frame))
         if self._geom is None or self._geom[0] != gkey:
             self._geom = None
             t = geo_fn(frame)
@@ -150,8 +150,9 @@ class GPUDevice(kdevice.Device):
         import gpu
 
         name, spec, arrays, tex, ints = self._tables(frame)
-        if gpu_layout_gauss.on_gpu(frame):
-            spec = spec._replace(defines=spec.defines + ("GPU_TILES",))
+        extra = (("GPU_TILES",) if gpu_layout_gauss.on_gpu(frame) else ()) + (
+            ("LIT",) if gpu_layout_gauss.lit(frame) else ())
+        spec = spec._replace(defines=spec.defines + extra)
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()

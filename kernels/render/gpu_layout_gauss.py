@@ -7,7 +7,7 @@ channel k % 4 (``flat``). Integers travel as exact floats, so each must stay bel
 (``check_exact`` says where one does not; the device then draws that frame on the CPU).
 
 Tables (name: rows x columns, what):
-- g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table): texel 0 = centre (3) and
+- g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table of unlit frames): texel 0 = centre (3) and
   the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
   factor); texel 1 = [1/sigma x, y, z as 18-bit floats with the object (4 bits) and "has a
   value" (1 bit) in two words (size_words), w, value (0 when NaN; field mode: the weight of the
@@ -18,6 +18,9 @@ Tables (name: rows x columns, what):
 - t_start (flat, tiles + 1): each screen tile's first entry.
 - t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
   20 bits (bit b of the mask: piece b // 22, bit b % 22).
+- g_grad (m x 4, particles mode with lit volumes, geometry: once per sync): the gradient at each
+  Gaussian's centre of its object's other Gaussians' field and its own field weight
+  (packing.Gaussians.grad, _cpu_lit.lit_gradients); the shader adds its own part at the chord.
 - Field mode also gets the leaf lookup its surfaces' normals need (mixture_normal): the core's
   walk tables (node_table, node_cells, cell_skip) and the cells' Gaussian lists c_start, c_items
   (flat).
@@ -138,10 +141,8 @@ def frame_tiles(frame):
 
 def unsupported(frame) -> str | None:
     """Why the GPU's Gaussian modes cannot draw this frame exactly (the device then draws it on
-    the CPU), or None: lit volumes, no screen-tile lists (switched off or too many entries), or
-    an index past the floats' exact range, or a 1/sigma beyond the size codes."""
-    if (np.asarray(frame.objects.lit) != 0).any():
-        return "lit volumes"
+    the CPU), or None: no screen-tile lists (switched off or too many entries), or an index past
+    the floats' exact range, or a 1/sigma beyond the size codes."""
     rec = frame.gauss.rec
     if (bad_sizes(rec[:, 3:6]) & (rec[:, 6] != 0)).any():
         return "a Gaussian too small or large for the GPU's size codes"
@@ -178,6 +179,18 @@ def no_geometry(frame):
     return gpu_layout.Tables({}, {})
 
 
+def lit(frame):
+    """Whether the frame draws a lit volume (the shaders are then compiled with LIT)."""
+    return bool((np.asarray(frame.objects.lit) != 0).any())
+
+
+def particles_geometry(frame):
+    """Lit volumes' centre gradients (g_grad), which change only with the sync; none unlit."""
+    if not lit(frame):
+        return no_geometry(frame)
+    return gpu_layout.Tables({"g_grad": fold(frame.gauss.grad)}, {})
+
+
 def particles_frame(frame):
     """Common tables, the Gaussians and the screen-tile lists (particles, paper)."""
     t = gpu_layout.common_tables(frame)
@@ -197,6 +210,6 @@ def field_frame(frame):
     return t
 
 
-gpu_layout.MODE_TABLES["particles"] = (no_geometry, particles_frame)
+gpu_layout.MODE_TABLES["particles"] = (particles_geometry, particles_frame)
 gpu_layout.MODE_TABLES["field"] = (no_geometry, field_frame)
 gpu_layout.MODE_TABLES["paper"] = (no_geometry, particles_frame)

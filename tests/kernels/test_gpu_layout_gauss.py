@@ -98,3 +98,25 @@ def test_overflow_tiles():
     d[3, 17] = L.OVERFLOW_DEPTH
     d[12, 2] = L.OVERFLOW_DEPTH
     assert L.overflow_tiles(d, 4, 0) == [((4, 8), (16, 20)), ((16, 24), (0, 8))]
+
+
+def test_lit_particles_upload_their_centre_gradients():
+    """Lit volumes in particles mode: the geometry tables hold each Gaussian's centre gradient and
+    own field weight (Gaussians.grad, 16 bytes a Gaussian, texel g); unlit frames and field mode
+    (which sums the gradient per sample) upload none, and lit frames stay on the GPU."""
+    rng = np.random.default_rng(4)
+    gs = gaussian_set(rng.uniform(0, 9, (300, 3)), 0.9, rng.uniform(0, 1, 300), 1.0)
+    cam = Camera.frame_box([0] * 3, [9] * 3, 24, 24)
+    tf = TransferFunction.from_colormap("viridis", 0, 1)
+    for mode, shading in (("particles", "lit"), ("particles", "emission"), ("field", "lit")):
+        sc = RenderScene([RenderObject(gs, shading=shading, shadows=True)], mode=mode)
+        fr = CPUDevice().begin_frame(sc, cam, tf)
+        geo = L.gpu_layout.MODE_TABLES[mode][0](fr).textures
+        assert L.lit(fr) == (shading == "lit") and L.unsupported(fr) is None
+        if mode == "particles" and shading == "lit":
+            m = fr.gauss.rec.shape[0]
+            assert fr.gauss.grad.shape == (m, 4) and np.abs(fr.gauss.grad[:, :3]).max() > 0
+            np.testing.assert_array_equal(geo["g_grad"].reshape(-1, 4)[:m],
+                                          fr.gauss.grad.astype(np.float32))
+        else:
+            assert "g_grad" not in geo

@@ -6,7 +6,8 @@
  * (field_crossing: with signed distances, the zero of their normalised mixture; else the 0.5
  * occupancy); the normal from the Gaussians around the hit
  * (mixture_normal). Entries wait in PCAP slots, active chords in PCAP more; a ray that needs
- * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. */
+ * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. With LIT (lit volumes in the
+ * frame), each lit sample is shaded on the mixture's analytic gradient (lit_enter, lit_sample). */
 #define NORMAL_BLUR 1.0
 #define NORMAL_REACH 4.0
 #define SDF_OCCUPANCY 0.25
@@ -20,6 +21,32 @@ float hstep, f_cend;
 float sprev_v[MAX_OBJ], sprev_w[MAX_OBJ], sprev_t[MAX_OBJ], sprev_n[MAX_OBJ];
 int sprev_i[MAX_OBJ];
 bool f_over;
+
+#ifdef LIT
+/* lit volumes (_cpu_gauss.sweep_field): active chord k's part of its object's mixture gradient at
+ * t is -V (a_ga[k] + t a_gb[k]) (V its value there), summed per object and sample in f_grad */
+vec3 a_ga[PCAP], a_gb[PCAP];
+vec3 f_grad[MAX_OBJ];
+
+void lit_enter(int k, Gauss G)
+{
+  vec3 i2 = G.iv * G.iv;
+  a_ga[k] = i2 * (g_ro[a_ob[k]] - G.mu);
+  a_gb[k] = i2 * g_rd[a_ob[k]];
+}
+
+void lit_move(int k, int j)
+{
+  a_ga[k] = a_ga[j];
+  a_gb[k] = a_gb[j];
+}
+
+/* sample colour c of object ob at ti, Blinn-Phong on f_grad where the object is lit */
+vec3 lit_sample(int ob, vec3 c, float ti)
+{
+  return g_lit[ob] == 0 ? c : shade_sample(ob, c, f_grad[ob], g_ro[ob] + ti * g_rd[ob], lit_ray, ti);
+}
+#endif
 
 /* object ob's surface at th inside the sample at ti: the sample's volumes up to th, then the hit */
 void mixture_hit(inout State st, int ob, float th, float ti, float sig, vec3 col, float vs, float vw)
@@ -94,6 +121,9 @@ bool sweep_field(inout State st, float horizon)
       a_w[nact] = G.w;
       a_c[nact] = G.val; /* the signed-distance weight (gpu_layout_gauss.gauss_tables) */
       a_ob[nact] = n_obj == 1 ? 0 : G.ob;
+#ifdef LIT
+      lit_enter(nact, G);
+#endif
       nact++;
       f_cend = max(f_cend, f_e[h]);
       slot_free(h);
@@ -117,6 +147,9 @@ bool sweep_field(inout State st, float horizon)
       sv[ob] = 0.0;
       nv[ob] = 0.0;
       sact[ob] = false;
+#ifdef LIT
+      f_grad[ob] = vec3(0.0);
+#endif
     }
     int k = 0;
     while (k < nact) {
@@ -129,11 +162,17 @@ bool sweep_field(inout State st, float horizon)
         a_w[k] = a_w[nact];
         a_c[k] = a_c[nact];
         a_ob[k] = a_ob[nact];
+#ifdef LIT
+        lit_move(k, nact);
+#endif
         continue;
       }
       float d = ti - a_ts[k];
       float e = exp(-(a_hq[k] + a_ha[k] * d * d));
       sv[a_ob[k]] += a_w[k] * e;
+#ifdef LIT
+      f_grad[a_ob[k]] -= a_w[k] * e * (a_ga[k] + ti * a_gb[k]);
+#endif
       nv[a_ob[k]] += a_c[k] * e;
       sact[a_ob[k]] = true;
       k++;
@@ -160,6 +199,11 @@ bool sweep_field(inout State st, float horizon)
       float sg, val;
       vec3 c;
       sample_color(ob, kind, sv[ob], g_ro[ob] + ti * g_rd[ob], sg, c, val);
+#ifdef LIT
+      if (sg > 0.0) {
+        c = lit_sample(ob, c, ti);
+      }
+#endif
       if (sg > 0.0) {
         sig += sg;
         col += sg * c;
@@ -318,6 +362,9 @@ bool trace_tiles(float tn, float tf, inout State st)
 
 void trace_mode(Ray r, inout State st)
 {
+#ifdef LIT
+  lit_ray = r;
+#endif
   if (!trace_tiles(r.tn, r.tf, st)) {
     st.depth = OVERFLOW_DEPTH; /* the device draws this pixel's tile on the CPU */
     return;

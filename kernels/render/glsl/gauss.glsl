@@ -37,6 +37,10 @@ vec3 g_color(Gauss G)
   return G.has_val ? lut_at(g_tfi[ob], tf_x(G.val, g_par[ob])).rgb : vec3(0.0);
 }
 
+#ifdef LIT
+Ray lit_ray;  /* the pixel's world ray, for lit volumes' shading (common.glsl's shade_sample) */
+#endif
+
 #ifdef GPU_TILES
 float entry_bound(Gauss G, int g) { return texel(t_lb, g).x; }  /* lists built on the GPU (tiles.glsl) */
 #else

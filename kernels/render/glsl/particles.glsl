@@ -5,7 +5,8 @@
  * past its exit. When every slot is taken the ray sweeps up to the next candidate's entry bound
  * (all entries before it are known, and the sweep's result does not depend on when it runs);
  * if that frees none, the pixel's depth is OVERFLOW_DEPTH and the device draws its tile on the
- * CPU. */
+ * CPU. With LIT (lit volumes in the frame), a lit chord's colour is shaded as it is found
+ * (lit_chord). */
 float h_s[PCAP], h_e[PCAP], h_ts[PCAP], h_sa[PCAP], h_c[PCAP], h_pk[PCAP], h_fa[PCAP], h_fb[PCAP];
 vec3 h_col[PCAP];
 float h_val[PCAP], h_vw[PCAP];
@@ -13,6 +14,23 @@ int mem[PCAP];
 int nm;
 float s_a, s_last, s_rho, s_cend;
 vec3 cb_lo, cb_hi;  /* the open members' colour bounds */
+
+#ifdef LIT
+/* a lit volume's chord colour (_cpu_lit.lit_member): col shaded once at its closest approach ts
+ * (qq: the whitened squared distance there) on the mixture's gradient, the Gaussian's own
+ * (analytic) plus its neighbours' at its centre (g_grad: xyz, and its own field weight in w) */
+vec3 lit_chord(Gauss G, int g, float ts, float qq, vec3 col)
+{
+  int ob = n_obj == 1 ? 0 : G.ob;
+  if (g_lit[ob] == 0) {
+    return col;
+  }
+  vec4 n = texel(g_grad, g);
+  vec3 x = g_ro[ob] + ts * g_rd[ob];
+  vec3 grad = n.xyz - n.w * exp(-0.5 * qq) * (x - G.mu) * G.iv * G.iv;
+  return shade_sample(ob, col, grad, x, lit_ray, ts);
+}
+#endif
 
 void reset_bounds() { cb_lo = vec3(INF); cb_hi = vec3(-INF); }
 void widen(int h) { cb_lo = min(cb_lo, h_col[h]); cb_hi = max(cb_hi, h_col[h]); }
@@ -165,6 +183,9 @@ bool trace_tiles(float tn, float tf, inout State st) {
     h_sa[h] = SQRT_HALF * aa * ra;
     h_c[h] = c.w * SQRT_HALF_PI * ra;
     h_col[h] = g_color(G); h_val[h] = G.val; h_vw[h] = G.has_val ? 1.0 : 0.0;
+#ifdef LIT
+    h_col[h] = lit_chord(G, g, c.z, qq, h_col[h]);
+#endif
     queue_insert(c.x, g, h);
     nh++;
   }
@@ -174,6 +195,9 @@ bool trace_tiles(float tn, float tf, inout State st) {
 
 void trace_mode(Ray r, inout State st)
 {
+#ifdef LIT
+  lit_ray = r;
+#endif
   if (!trace_tiles(r.tn, r.tf, st)) {
     st.depth = OVERFLOW_DEPTH;  /* the device draws this pixel's tile on the CPU */
   }
