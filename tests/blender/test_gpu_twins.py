@@ -4,6 +4,7 @@ fixtures, and every frame must be drawn by the GPU itself (a frame handed to the
 Surfaces: the sphere's silhouette, normal and depth, lights, volumes in front of, behind and around
 a surface; clipping: planes along and across the view, two halves, boxes."""
 import pytest
+from gpu_twin import OnGPU
 from test_render_clip import (  # noqa: F401
     blob,
     test_box,
@@ -17,22 +18,6 @@ from test_render_surface import (  # noqa: F401
     test_reference_sphere_silhouette_normal_depth,
     test_volumes_in_front_behind_and_around,
 )
-
-
-class OnGPU:
-    """The GPU device, failing any frame it hands to the CPU device."""
-
-    def __init__(self, device):
-        self.device = device
-
-    def render(self, *args, **kw):
-        out = self.device.render(*args, **kw)
-        assert "fallback" not in self.device.stats, f"drawn by the CPU: {self.device.stats['fallback']}"
-        assert self.device.stats.get("gpu"), "no GPU named in the stats"
-        return out
-
-    def __getattr__(self, name):
-        return getattr(self.device, name)
 
 
 @pytest.fixture(scope="module")
