@@ -21,7 +21,12 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import gpu_layout, gpu_layout_gauss, gpu_layout_tiles  # _gauss: the Gaussian modes' tables
+from ...kernels.render import (  # _gauss: the Gaussian modes' tables
+    gpu_layout,
+    gpu_layout_color,  # the volumes coloured by a second grid
+    gpu_layout_gauss,
+    gpu_layout_tiles,
+)
 from . import compute, context, tiles
 
 # glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
@@ -61,6 +66,8 @@ class GPUDevice(kdevice.Device):
         frame = self.cpu.begin_frame(scene, camera, tf)
         frame.tiles_on_gpu = (self.gpu_tiles and int(frame.mode) <= Mode.PAPER
                               and frame.gauss.mu.shape[0] > 0)
+        if int(frame.mode) in (Mode.PARTICLES, Mode.PAPER) and gpu_layout_color.colored(frame):
+            frame.color_values = self.cpu.gacc.g_cval  # (the Gaussians' colours: gpu_layout_color)
         self.stats["seconds_setup"] = self.cpu.stats.get("seconds_setup", 0.0)
         return frame
 
@@ -77,8 +84,6 @@ class GPUDevice(kdevice.Device):
     @staticmethod
     def fallback(frame):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
-        if (np.asarray(frame.objects.ctf) >= 0).any():
-            return "an object coloured by a second grid"
         spec = MODES.get(Mode(int(frame.mode)).name.lower())
         if spec is not None and not spec.lit and (np.asarray(frame.objects.lit) != 0).any():
             return "lit volumes"
@@ -119,6 +124,7 @@ class GPUDevice(kdevice.Device):
             self._geom = (gkey, t, compute.upload(t.textures))
         if self._up is None or self._up[0] != frame.key:
             t = frame_fn(frame)
+            t.textures.update(gpu_layout_color.frame_tables(frame))
             tex = compute.upload(t.textures)
             if gpu_layout_gauss.on_gpu(frame):
                 tex.update(self._tile_lists(frame))
@@ -152,6 +158,7 @@ class GPUDevice(kdevice.Device):
         name, spec, arrays, tex, ints = self._tables(frame)
         if gpu_layout_gauss.on_gpu(frame):
             spec = spec._replace(defines=spec.defines + ("GPU_TILES",))
+        spec = spec._replace(defines=spec.defines + gpu_layout_color.defines(arrays))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
