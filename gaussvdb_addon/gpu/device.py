@@ -5,8 +5,10 @@ rows and a readback; ``render_texture`` leaves the image on the GPU (the viewpor
 
 Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, inout State st)``,
 its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
-device does not draw (lit volumes in a mode without ``lit``; modes without an entry) are said in
-``fallback(frame)``: frames the GPU cannot draw exactly (see there) go to the CPU device.
+device does not draw (lit volumes in a mode without ``lit``; modes without an entry; Gaussian-mode
+frames gpu_layout_gauss.unsupported names) are said in ``fallback(frame)``: frames the GPU cannot
+draw exactly (see there) go to the CPU device. Volumes coloured by a second grid are drawn here in
+every mode (their tables: gpu_layout_color, added to every mode's; glsl/color.glsl).
 
 The Gaussian modes' screen-tile lists are built here on the GPU (tiles.py; the CPU device's frame
 then has none: ``tiles_elsewhere``); lists too long for the GPU come from the CPU device, and a
