@@ -2,10 +2,12 @@
 another) itself, in every mode, against the CPU device: a written fire-like fixture (density;
 temperature with its own topology, a background and a tile) and, where the shared data is, the
 Mantaflow fire (density coloured by temperature), each at two LODs (reference mode samples the
-voxels: one case). The colour grid changes the GPU image's colour, not its alpha.
+voxels: one case); two overlapping objects, one coloured; lit reference volumes (with shadows).
+The colour grid changes the GPU image's colour, not its alpha.
 
 The figure: `.venv/bin/python -m pytest tests/blender/test_gpu_color_grid.py -k shared -s -q
 -p no:cacheprovider` prints GPU vs CPU PSNR per mode and LOD on the shared fire."""
+import dataclasses
 import os
 
 import numpy as np
@@ -18,6 +20,7 @@ from kernels.lod import build_lod
 from kernels.lod.gridprep import value_range
 from kernels.lod.second_grid import attach
 from kernels.render import Camera, RenderObject, RenderScene, TransferFunction
+from kernels.render.lights import Light
 from kernels.vdb import read_vdb
 
 FIRE = os.path.join(DATA_DIR, "mantaflow_fire_r96_f035.vdb")
@@ -105,6 +108,21 @@ def test_two_objects_one_coloured_by_a_second_grid(gpu, cpu, fixture_fire, mode)
     print(f"fixture {mode}, two objects: GPU vs CPU {db:.1f} dB")
     assert gpu.stats.get("overflow_tiles", 0) == 0
     assert db >= GPU_MIN_DB, f"{mode}, two objects: PSNR {db:.1f} dB"
+
+
+@pytest.mark.parametrize("shadows", [False, True])
+def test_lit_reference_coloured_by_a_second_grid(gpu, cpu, fixture_fire, shadows):
+    """Reference mode shades lit volumes on the GPU: the colour grid's colour, then Blinn-Phong
+    (a sun, and shadows), as the CPU device does."""
+    scene, cam, tf = fixture_fire
+    sc = scene("reference", "medium")
+    sc = dataclasses.replace(sc, lights=(Light("sun", (-1.0, 1.0, -0.3)),), objects=[
+        dataclasses.replace(o, shading="lit", shadows=shadows) for o in sc.objects])
+    _, want, db = compare(gpu, cpu, (lambda *a: sc, cam, tf), "reference", "medium")
+    emission = cpu.render(scene("reference", "medium"), cam, tf)["Combined"]
+    assert np.abs(want["Combined"] - emission).max() > 0.02  # the light shows
+    print(f"fixture reference, lit{' + shadows' if shadows else ''}: GPU vs CPU {db:.1f} dB")
+    assert db >= GPU_MIN_DB, f"lit reference: PSNR {db:.1f} dB"
 
 
 @pytest.mark.parametrize("mode", ["reference", "particles", "field", "paper"])
