@@ -2,7 +2,8 @@
 another) itself, in every mode, against the CPU device: a written fire-like fixture (density;
 temperature with its own topology, a background and a tile) and, where the shared data is, the
 Mantaflow fire (density coloured by temperature), each at two LODs (reference mode samples the
-voxels: one case); two overlapping objects, one coloured; lit reference volumes (with shadows).
+voxels: one case); two overlapping objects, one coloured; lit reference volumes (with shadows);
+`./gaussvdb render --color-grid --device gpu`.
 The colour grid changes the GPU image's colour, not its alpha.
 
 The figure: `.venv/bin/python -m pytest tests/blender/test_gpu_color_grid.py -k shared -s -q
@@ -14,6 +15,8 @@ import numpy as np
 import pytest
 from conftest import DATA_DIR
 from references import GPU_MIN_DB, psnr
+from test_color_grid_blender import _render
+from test_engine_helpers import read_image
 from vdb_fixtures import write_fire_like
 
 from kernels.lod import build_lod
@@ -62,9 +65,13 @@ def setup(density, temperature, width, density_scale):
 
 
 @pytest.fixture(scope="module")
-def fixture_fire(tmp_path_factory):
-    path = write_fire_like(tmp_path_factory.mktemp("fire") / "fire.vdb", BACKGROUND)
-    density, temperature = read_vdb(str(path)).grids
+def fire_path(tmp_path_factory):
+    return str(write_fire_like(tmp_path_factory.mktemp("fire") / "fire.vdb", BACKGROUND))
+
+
+@pytest.fixture(scope="module")
+def fixture_fire(fire_path):
+    density, temperature = read_vdb(fire_path).grids
     return setup(density, temperature, 40, 12.0)
 
 
@@ -138,6 +145,20 @@ def test_the_colour_grid_colours_the_gpu_image(gpu, fixture_fire, mode):
     np.testing.assert_allclose(other[..., 3], alpha, atol=2e-5)
     diff = np.abs(other[..., :3] - own[..., :3]).max(-1)
     assert (diff[alpha > 0.05] > 0.02).mean() > 0.5
+
+
+def test_cli_renders_a_colour_grid_on_the_gpu(gpu, bpy_module, fire_path, tmp_path):
+    """`./gaussvdb render --color-grid temperature --device gpu` (F12 through the engine): the GPU
+    draws it (no fallback) and its image is the CPU device's."""
+    got, stats = _render(fire_path, tmp_path, "gpu", "field", "--color-grid", "temperature",
+                         "--device", "gpu")
+    want, _ = _render(fire_path, tmp_path, "cpu", "field", "--color-grid", "temperature")
+    assert stats["device"] == "GPU" and stats["fallback"] is None
+    got, want = read_image(bpy_module, got), read_image(bpy_module, want)
+    assert want[..., 3].max() > 0.1
+    db = psnr(got, want)
+    print(f"command line, field, GPU vs CPU: {db:.1f} dB")
+    assert db >= GPU_MIN_DB, f"PSNR {db:.1f} dB"
 
 
 @pytest.mark.parametrize("mode, lod", CASES)
