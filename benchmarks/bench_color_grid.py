@@ -1,9 +1,12 @@
-"""Colour by a second grid: what it costs. `./gaussvdb bench color_grid [--file F] [--size N]`
+"""Colour by a second grid: what it costs. `./gaussvdb bench color_grid [--file F] [--size N]
+[--lod L] [--device cpu|gpu]`
 
 For the Mantaflow fire (density, coloured by temperature; default ../shared/data beside the
 repository), per LOD the seconds to form the colour grid's values at the Gaussians, and per mode
-the frame time (best of three, set-up included) coloured by density itself and by temperature,
-and their ratio. A file that is not there is skipped with a note.
+the frame time (best of three, set-up included; High LOD unless --lod) coloured by density itself
+and by temperature, and their ratio. --device gpu: the GPU device's frames (in the bpy module's
+GPU context), and the PSNR of its image coloured by temperature against the CPU device's. A file
+that is not there is skipped with a note.
 """
 from __future__ import annotations
 
@@ -16,12 +19,19 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "tools"))
 
 from kernels import pipeline  # noqa: E402  (after the sys.path set-up above)
 from kernels.render import MODES, Camera, CPUDevice, RenderObject, RenderScene, TransferFunction  # noqa: E402
 from kernels.vdb import read_vdb  # noqa: E402
 
 FIRE = os.path.join(os.path.dirname(ROOT), "shared", "data", "mantaflow_fire_r96_f035.vdb")
+
+
+def psnr(a, b):
+    """dB of RGBA image a against b, peak 1 (as the GPU tests measure)."""
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
 
 
 def best_frame(dev, scene, cam, tf, runs=3):
@@ -41,6 +51,8 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", default="density")
     ap.add_argument("--color-grid", default="temperature")
     ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--lod", default="high", choices=("low", "medium", "high"))
+    ap.add_argument("--device", default="cpu", choices=("cpu", "gpu"))
     a = ap.parse_args(argv)
     if not os.path.isfile(a.file):
         print(f"skipped: {a.file} not found")
@@ -51,8 +63,10 @@ def main(argv=None) -> int:
         cl = cg.lods[0]
         print(f"{lod:8s} {cl.gset.count:8,d} Gaussians  colour values {cl.seconds_color:.4f} s "
               f"(build {cl.seconds:.4f} s)")
+        if lod == a.lod:
+            gs = cl.gset
     grids = {g.name: g for g in read_vdb(a.file, [a.grid, a.color_grid]).grids}
-    gs, m = cl.gset, cg.index_to_world
+    m = cg.index_to_world
     lo, hi = cg.leaf_box
     c = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                   for z in (lo[2], hi[2])]) @ m.T
@@ -61,14 +75,33 @@ def main(argv=None) -> int:
     tf = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=10.0 / np.linalg.norm(whi - wlo))
     st = cg.color_values
     ctf = TransferFunction.from_colormap("inferno", st["min"], st["max"], alpha="constant")
-    print(f"High LOD, {a.size}x{a.size}: frame seconds coloured by {a.grid} / by {a.color_grid}")
+    device, run = devices(a.device)
+    print(f"{a.lod} LOD, {a.size}x{a.size}, {a.device.upper()} device: frame seconds coloured by "
+          f"{a.grid} / by {a.color_grid}")
     for mode in MODES:
         own = RenderScene([RenderObject(gs, m, grid=grids[a.grid])], mode=mode)
         other = RenderScene([RenderObject(gs, m, grid=grids[a.grid], color_tf=ctf,
                                           color_grid=grids[a.color_grid])], mode=mode)
-        t0, t1 = best_frame(CPUDevice(), own, cam, tf), best_frame(CPUDevice(), other, cam, tf)
-        print(f"  {mode:10s} {t0:.3f} / {t1:.3f} s  ({t1 / t0:.2f}x)")
+        d0, d1 = device(), device()
+        t0, t1 = run(lambda: best_frame(d0, own, cam, tf)), run(lambda: best_frame(d1, other, cam, tf))
+        line = f"  {mode:10s} {t0:.3f} / {t1:.3f} s  ({t1 / t0:.2f}x)"
+        if a.device == "gpu":
+            want = CPUDevice().render(other, cam, tf)["Combined"]
+            got = run(lambda: d1.render(other, cam, tf))["Combined"]
+            line += (f"  GPU vs CPU {psnr(got, want):.1f} dB, {d1.stats.get('overflow_tiles', 0)} "
+                     f"tiles redrawn on the CPU, fallback: {d1.stats.get('fallback')}")
+        print(line)
     return 0
+
+
+def devices(name):
+    """(a device factory, a runner): the CPU device, or the GPU device with its GPU context."""
+    if name == "cpu":
+        return CPUDevice, lambda fn: fn()
+    from blender_session import addon_module, start
+
+    start()
+    return addon_module("gaussvdb_addon.gpu.device").GPUDevice, addon_module("gaussvdb_addon.gpu.context").run
 
 
 if __name__ == "__main__":

@@ -23,10 +23,10 @@ def glsl(name):
 
 
 def source(glsl_file):
-    """The compute source: common, the mode's file (or files, in order), main (the create-info
-    adds the resources)."""
+    """The compute source: common, color (the colour grids' functions), the mode's file (or
+    files, in order), main (the create-info adds the resources)."""
     files = (glsl_file,) if isinstance(glsl_file, str) else tuple(glsl_file)
-    return "\n".join(glsl(n) for n in ("common.glsl",) + files + ("main.glsl",))
+    return "\n".join(glsl(n) for n in ("common.glsl", "color.glsl") + files + ("main.glsl",))
 
 
 def group(spec):

@@ -11,6 +11,8 @@ cannot draw exactly (see there) go to the CPU device.
 Lit volumes are drawn in every mode that has them (reference, particles, field; paper has none):
 the shaders are then compiled with LIT (the Gaussian modes' shading code, common.glsl's
 shade_sample), the shadow grids and particles' centre gradients come from the CPU device's frame.
+Volumes coloured by a second grid are drawn here in every mode too (their tables:
+gpu_layout_color, added to every mode's; glsl/color.glsl).
 
 The Gaussian modes' screen-tile lists are built here on the GPU (tiles.py; the CPU device's frame
 then has none: ``tiles_elsewhere``); lists too long for the GPU come from the CPU device, and a
@@ -25,7 +27,12 @@ import numpy as np
 
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
-from ...kernels.render import gpu_layout, gpu_layout_gauss, gpu_layout_tiles  # _gauss: the Gaussian modes' tables
+from ...kernels.render import (  # _gauss: the Gaussian modes' tables
+    gpu_layout,
+    gpu_layout_color,  # the volumes coloured by a second grid
+    gpu_layout_gauss,
+    gpu_layout_tiles,
+)
 from . import compute, context, tiles
 
 # glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
@@ -64,6 +71,8 @@ class GPUDevice(kdevice.Device):
         frame = self.cpu.begin_frame(scene, camera, tf)
         frame.tiles_on_gpu = (self.gpu_tiles and int(frame.mode) <= Mode.PAPER
                               and frame.gauss.mu.shape[0] > 0)
+        if int(frame.mode) in (Mode.PARTICLES, Mode.PAPER) and gpu_layout_color.colored(frame):
+            frame.color_values = self.cpu.gacc.g_cval  # (the Gaussians' colours: gpu_layout_color)
         self.stats["seconds_setup"] = self.cpu.stats.get("seconds_setup", 0.0)
         return frame
 
@@ -80,8 +89,6 @@ class GPUDevice(kdevice.Device):
     @staticmethod
     def fallback(frame):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
-        if (np.asarray(frame.objects.ctf) >= 0).any():
-            return "an object coloured by a second grid"
         if int(frame.mode) <= Mode.PAPER:
             return gpu_layout_gauss.unsupported(frame)
         return None
@@ -119,6 +126,7 @@ class GPUDevice(kdevice.Device):
             self._geom = (gkey, t, compute.upload(t.textures))
         if self._up is None or self._up[0] != frame.key:
             t = frame_fn(frame)
+            t.textures.update(gpu_layout_color.frame_tables(frame))
             tex = compute.upload(t.textures)
             if gpu_layout_gauss.on_gpu(frame):
                 tex.update(self._tile_lists(frame))
@@ -153,6 +161,7 @@ class GPUDevice(kdevice.Device):
         extra = (("GPU_TILES",) if gpu_layout_gauss.on_gpu(frame) else ()) + (
             ("LIT",) if gpu_layout_gauss.lit(frame) else ())
         spec = spec._replace(defines=spec.defines + extra)
+        spec = spec._replace(defines=spec.defines + gpu_layout_color.defines(arrays))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()

@@ -157,13 +157,18 @@ def walk_frame(accel):
 
 # -- reference mode -------------------------------------------------------------------------------
 def reference_geometry(frame):
-    """Voxel atlas, the leaf hierarchy and each cell's [x, y, z] in leaves (once per sync)."""
+    """Voxel atlas (with the colour grids' bricks after the grid's: gpu_layout_color), the leaf
+    hierarchy and each cell's [x, y, z] in leaves (once per sync)."""
     a = frame.accel
-    atlas, (sx, sy, _) = brick_atlas(a.bricks)
+    color = a.cbricks.shape == a.bricks.shape  # (else a placeholder: no colour grid)
+    atlas, (sx, sy, _) = brick_atlas(np.concatenate([a.bricks, a.cbricks]) if color else a.bricks)
     tex = walk_tables(a)
     tex["atlas"] = atlas
     tex["cells"] = fold_rows(_exact(a.cell_xyz, "cell coordinates"))
-    return Tables(tex, {"atlas_sx": sx, "atlas_sy": sy})
+    ints = {"atlas_sx": sx, "atlas_sy": sy}
+    if color:  # cell c's colour brick: c + cbrick0
+        ints["cbrick0"] = a.bricks.shape[0]
+    return Tables(tex, ints)
 
 
 def reference_frame(frame):

@@ -14,7 +14,8 @@ Tables (name: rows x columns, what):
   second mixture, packing.Gaussians.cw: surfaces' signed distance x w)]. A packed word's high half
   is a normal half float's bits (range checked), so the word is a normal float32 (never NaN,
   Inf or denormal) and survives upload and texelFetch bit for bit. Colours are not uploaded:
-  the shader takes them from the transfer function's LUT at the value (level sets: ls_color).
+  the shader takes them from the transfer function's LUT at the value (level sets: ls_color;
+  volumes coloured by a second grid: their colour map at gpu_layout_color's g_cval).
 - t_start (flat, tiles + 1): each screen tile's first entry.
 - t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
   20 bits (bit b of the mask: piece b // 22, bit b % 22).

@@ -113,17 +113,15 @@ def test_lit_volumes_match_the_cpu_device(gpu, cpu, shadows):
 
 
 def test_a_frame_the_gpu_cannot_draw_goes_to_the_cpu(gpu):
-    """An object coloured by a second grid is not on the GPU yet: the device draws the frame on the
-    CPU (the same image) and says why."""
+    """A Gaussian wider than the GPU's 1/sigma codes hold: the device draws the frame on the CPU
+    (the same image) and says why."""
     from kernels.render.synthetic import gaussian_set
 
-    gs = gaussian_set([[0.0, 0.0, 0.0], [1.0, 0.5, 0.0]], 1.0, [1.0, 0.5], [1.0, 1.0])
-    gs.color_values = np.array([0.2, 0.9], np.float32)
-    obj = RenderObject(gs, color_tf=TransferFunction.from_colormap("inferno", 0.0, 1.0))
-    sc = RenderScene([obj], mode="particles")
+    gs = gaussian_set([[0.0, 0.0, 0.0], [1.0, 0.5, 0.0]], [[1.0] * 3, [1e5] * 3], [1.0, 0.5], [1.0, 1.0])
+    sc = RenderScene([RenderObject(gs)], mode="particles")
     cam = Camera.frame_box([-3] * 3, [3] * 3, 8, 8)
     got = gpu.render(sc, cam, TF)["Combined"]
-    assert gpu.stats["fallback"] == "an object coloured by a second grid"
+    assert gpu.stats["fallback"] == "a Gaussian too small or large for the GPU's size codes"
     np.testing.assert_array_equal(got, CPUDevice().render(sc, cam, TF)["Combined"])
 
 

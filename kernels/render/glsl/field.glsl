@@ -199,6 +199,9 @@ bool sweep_field(inout State st, float horizon)
       float sg, val;
       vec3 c;
       sample_color(ob, kind, sv[ob], g_ro[ob] + ti * g_rd[ob], sg, c, val);
+#ifdef COLOR_GRID
+      recolor(ob, nv[ob] + color_background(ob), sg, c); /* nv: the colour grid's mixture */
+#endif
 #ifdef LIT
       if (sg > 0.0) {
         c = lit_sample(ob, c, ti);

@@ -27,13 +27,19 @@ Gauss gauss_at(int g)
   G.ob = int((y >> 9) & 15u);
   return G;
 }
-/* its colour (_cpu's per-frame colours: the LUT at its value; level sets: ls_color at the centre) */
-vec3 g_color(Gauss G)
+/* Gaussian g's colour (_cpu's per-frame colours: the LUT at its value, or the colour map at its
+ * colour value; level sets: ls_color at the centre) */
+vec3 g_color(Gauss G, int g)
 {
   int ob = n_obj == 1 ? 0 : G.ob;
   if (g_kind[ob] != 0) {
     return ls_color(ob, g_tfi[ob], G.mu);
   }
+#ifdef COLOR_VALUES
+  if (color_tf(ob) >= 0) {
+    return color_map(color_tf(ob), scalar(g_cval, g));
+  }
+#endif
   return G.has_val ? lut_at(g_tfi[ob], tf_x(G.val, g_par[ob])).rgb : vec3(0.0);
 }
 

@@ -95,7 +95,7 @@ void trace_mode(Ray r, inout State st)
       int g = b_g[k];
       Gauss G = gauss_at(g);
       int ob = n_obj == 1 ? 0 : G.ob;
-      vec3 col = g_color(G);
+      vec3 col = g_color(G, g);
       float val = G.val, vw = G.has_val ? 1.0 : 0.0;
       float dt = (b_t1[k] - b_t0[k]) / float(nsteps);
       for (int s = 0; s < nsteps; s++) {

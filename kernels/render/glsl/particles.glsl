@@ -182,7 +182,7 @@ bool trace_tiles(float tn, float tf, inout State st) {
     h_s[h] = c.x; h_e[h] = c.y; h_ts[h] = c.z; h_pk[h] = c.w;
     h_sa[h] = SQRT_HALF * aa * ra;
     h_c[h] = c.w * SQRT_HALF_PI * ra;
-    h_col[h] = g_color(G); h_val[h] = G.val; h_vw[h] = G.has_val ? 1.0 : 0.0;
+    h_col[h] = g_color(G, g); h_val[h] = G.val; h_vw[h] = G.has_val ? 1.0 : 0.0;
 #ifdef LIT
     h_col[h] = lit_chord(G, g, c.z, qq, h_col[h]);
 #endif

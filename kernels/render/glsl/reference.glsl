@@ -135,6 +135,11 @@ bool reference_sample(inout State st, Ray r, float t, float p0, float h, int nco
     float s, v;
     vec3 cc;
     sample_color(ob, kind, val, x, s, cc, v);
+#ifdef COLOR_GRID
+    if (s > 0.0 && color_tf(ob) >= 0) { /* the colour grid's brick of this cell */
+      cc = color_map(color_tf(ob), trilinear(brick_base(cid + cbrick0), clamp(x - cov_org[c], 0.0, 8.999999)));
+    }
+#endif
     if (g_lit[ob] != 0 && s > 0.0) {
       cc = shade_sample(ob, cc, trilinear_grad(cov_base[c], clamp(x - cov_org[c], 0.0, 8.999999)), x, r, t);
     }
