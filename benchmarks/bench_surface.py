@@ -1,8 +1,10 @@
-"""Level-set surfaces: PSNR of the field-mode surface (the Gaussian mixture's 0.5 occupancy) at each
-LOD against the reference-mode surface of the voxels (trilinear signed distance, 1/8-voxel step),
+"""Level-set surfaces: PSNR of the field-mode surface (the zero of the Gaussians' signed-distance
+mixture) at each LOD against the reference-mode surface of the voxels (trilinear signed distance, 1/8-voxel step),
 both lit by the headlight, coloured by height, seen from the report's view.
 
     ./gaussvdb bench surface [FILES...] [--size 512x512] [--lods medium,high] [--json out.json]
+
+docs/bench/surface.md holds its output on the shared bunny and teapot.
 
 Default files: the bunny and teapot level sets of the shared data folder. Targets (issue 20):
 High >= 35 dB, Medium >= 30 dB.

@@ -5,6 +5,7 @@ the gradient threshold, shadows behind a slab and a wide Gaussian; a second grid
 not alpha, and a constant one gives one hue, in every mode."""
 import pytest
 from gpu_twin import OnGPU
+from test_color_grid import fire, test_constant_colour_grid_gives_one_hue, test_second_grid_changes_colour_not_alpha  # noqa: F401
 from test_render_lit import (  # noqa: F401
     blob,
     test_lit_field_matches_quadrature,
