@@ -200,17 +200,37 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
     ntx = (W + TILE - 1) // TILE
     w0 = min(c1, (c0 // TILE + 1) * TILE) - c0  # the first tile column's part of [c0, c1)
     st, ro, rd, rclip, sprev = scr.st, scr.ro, scr.rd, scr.rclip, scr.sprev
+    # pixel p0's tile (its first column x0, width tw) and place (qi, qj) in it; then stepped
+    # pixel by pixel (integer divisions per pixel cost as much as a culled pixel's work)
+    if p0 < nr * w0:
+        x0, tw, q = c0, w0, p0
+    else:
+        k = (p0 - nr * w0) // (nr * TILE)
+        x0 = (c0 // TILE + 1 + k) * TILE
+        tw = min(TILE, c1 - x0)
+        q = p0 - nr * w0 - k * nr * TILE
+    qj, qi = q // tw, q % tw
+    bg = (bgr * bga, bgg * bga, bgb * bga, bga)
     for p in range(p0, nr * (c1 - c0)):
-        if p < nr * w0:
-            x0, tw, q = c0, w0, p
-        else:
-            k = (p - nr * w0) // (nr * TILE)
-            x0 = (c0 // TILE + 1 + k) * TILE
-            tw = min(TILE, c1 - x0)
-            q = p - nr * w0 - k * nr * TILE
-        jr = jr0 + q // tw
-        j = j0 + q // tw
-        i = x0 + q % tw
+        if qi == tw:
+            qi = 0
+            qj += 1
+            if qj == nr:
+                qj = 0
+                x0 += tw
+                tw = min(TILE, c1 - x0)
+        jr = jr0 + qj
+        j = j0 + qj
+        i = x0 + qi
+        qi += 1
+        tl = (j // TILE) * ntx + i // TILE
+        if culled and t_start[tl + 1] == t_start[tl]:  # no leaf projects here: the background
+            io = i - c0
+            out.rgba[jr, io, 0], out.rgba[jr, io, 1], out.rgba[jr, io, 2] = bg[0], bg[1], bg[2]
+            out.rgba[jr, io, 3] = bg[3]
+            out.depth[jr, io] = BG_DEPTH
+            out.value[jr, io] = 0.0
+            continue
         py = ((j + 0.5) / Hh - 0.5) * ey + offy
         px = ((i + 0.5) / W - 0.5) * ex + offx
         if cam[0] < 0.5:
@@ -227,9 +247,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             owy = cam[17] + px * cam[10] + py * cam[11]
             owz = cam[18] + px * cam[13] + py * cam[14]
             tn, tf = clip0, clip1
-        tl = (j // TILE) * ntx + i // TILE
         n = t_start[tl + 1] - t_start[tl] if tiled else 0
-        walk = not tiled and not (culled and t_start[tl + 1] == t_start[tl])
+        walk = not tiled
         for ob in range(n_obj):
             M = w2i[ob]
             ox = M[0, 0] * owx + M[0, 1] * owy + M[0, 2] * owz + M[0, 3]
@@ -245,14 +264,14 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
                 n = walk_object(ox, oy, oz, dx, dy, dz, max(tn, rclip[ob, 0]),
                                 min(tf, rclip[ob, 1]), accel.node_min[ob], accel.node_dims[ob],
                                 accel.node_off[ob], accel.node_table, accel.node_cells,
-                                accel.cell_skip, ob, scr.iv_ta, scr.iv_tb, scr.iv_obj, scr.iv_cell,
+                                accel.node_box, accel.cell_skip, ob, scr.iv_ta, scr.iv_tb, scr.iv_obj, scr.iv_cell,
                                 n, accel.max_walk, 1)
         for w in range(n_obj, accel.walk_obj.shape[0] if walk else 0):  # the coarse levels' grids
             ob = accel.walk_obj[w]
             n = walk_object(ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
                             max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]), accel.node_min[w],
                             accel.node_dims[w], accel.node_off[w], accel.node_table,
-                            accel.node_cells, accel.cell_skip, w, scr.iv_ta, scr.iv_tb, scr.iv_obj,
+                            accel.node_cells, accel.node_box, accel.cell_skip, w, scr.iv_ta, scr.iv_tb, scr.iv_obj,
                             scr.iv_cell, n, accel.max_walk, accel.walk_scale[w])
         wr = scr.wr
         wr[0], wr[1], wr[2], wr[3], wr[4], wr[5] = owx, owy, owz, dwx, dwy, dwz

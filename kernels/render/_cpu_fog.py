@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 from ..jit import njit
-from ._cpu_math import BG_DEPTH, DEPTH, RAD, SEGS, TMIN, TR, VSUM, VWT, _hot
+from ._cpu_math import BG_DEPTH, DEPTH, RAD, SEGS, TMIN, TR, VSUM, VWT, _hot, _hot_fused
 from ._cpu_surface import brick_xyz, trilinear
 
 # the series of 1 - exp(-x) = sum c_k x^(k + 1), c_k = (-1)^k / (k + 1)!, to 12 terms
@@ -33,6 +33,17 @@ def absorbed(tau):
 
 
 @njit(**_hot)
+def equal_steps(p0, p1, dt):
+    """(count, length) of the equal steps of at most dt over [p0, p1], as the general sampler
+    divides it (_cpu_pieces.reference_piece): compiled on its own without fastmath (numba's
+    inlining would give it the caller's flags), so that a reciprocal never changes a count."""
+    ns = int(math.ceil((p1 - p0) / dt))
+    if ns < 1:
+        ns = 1
+    return ns, (p1 - p0) / ns
+
+
+@njit(**_hot_fused)
 def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, lut, par):
     """Composite the n leaf intervals (iv_ta, iv_tb, iv_cell, front to back) of object 0's ray
     (index-space origin ro[0], direction rd[0]) into st; step: the object's step in voxels,
@@ -50,10 +61,7 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
         p0 = iv_ta[pi]
         p1 = iv_tb[pi]
         cid = iv_cell[pi]
-        ns = int(math.ceil((p1 - p0) / dt))
-        if ns < 1:
-            ns = 1
-        h = (p1 - p0) / ns
+        ns, h = equal_steps(p0, p1, dt)
         cxyz = cell_xyz[cid]
         B = bricks[cid]
         for i in range(ns):

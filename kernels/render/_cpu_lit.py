@@ -197,7 +197,8 @@ def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer
         c0, c1 = max(0.0, c0), min(tmax, c1)
         n = walk_object(ro[0], ro[1], ro[2], rd[0], rd[1], rd[2], c0, c1,
                         accel.node_min[w], accel.node_dims[w], accel.node_off[w],
-                        accel.node_table, accel.node_cells, accel.cell_skip, w, iv_ta, iv_tb,
+                        accel.node_table, accel.node_cells, accel.node_box, accel.cell_skip, w,
+                        iv_ta, iv_tb,
                         iv_obj, iv_cell, 0, accel.max_walk, accel.walk_scale[w])
         h = SHADOW_STEP / math.sqrt(rd[0] ** 2 + rd[1] ** 2 + rd[2] ** 2)  # world length
         lastc[:] = -(1 << 62)

@@ -49,10 +49,12 @@ def dda_axis(o, d, t, size, lo, hi):
 
 @njit(**_hot)
 def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, node_cells,
-                cell_skip, obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap, scale):
+                node_box, cell_skip, obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap, scale):
     """Hierarchical DDA (nodes of 128^3, then leaves of 8^3, integer cell indices; both ``scale``
     times larger for a grid of coarse cells) in q-space (q = index + 0.5) over the ray's [tn, tf];
-    appends the non-empty, non-transparent cell intervals front to back, tagged ``obj``."""
+    appends the non-empty, non-transparent cell intervals front to back, tagged ``obj``. Inside a
+    node the leaf DDA runs only over the box of its drawn cells (node_box, packing.node_boxes):
+    most of a sparse node is empty, and stepping through it cost more than the samples."""
     if ndims[0] == 0:
         return n
     node = NODE * scale
@@ -71,42 +73,46 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
         tn = min(mx, my, mz, t1)
         if tn > t:
             nid = node_table[noff + ((cx - nmin[0]) * ndims[1] + (cy - nmin[1])) * ndims[2] + (cz - nmin[2])]
-            if nid >= 0:
-                # leaf-level DDA inside this node over [t, tn]
+            if nid >= 0 and node_box[nid, 0] < node_box[nid, 3]:
+                # leaf-level DDA over the node's drawn cells [lo, hi) within [t, tn]
                 bx, by, bz = cx * NL, cy * NL, cz * NL
-                lx, lsx, lmx, lex = dda_axis(qx, dx, t, leaf, bx, bx + NL)
-                ly, lsy, lmy, ley = dda_axis(qy, dy, t, leaf, by, by + NL)
-                lz, lsz, lmz, lez = dda_axis(qz, dz, t, leaf, bz, bz + NL)
-                u = t
-                while True:
-                    un = min(lmx, lmy, lmz, tn)
-                    if un > u:
-                        cid = node_cells[nid, ((lx - bx) * NL + (ly - by)) * NL + (lz - bz)]
-                        if cid >= 0 and cell_skip[cid] == 0 and n < cap:
-                            iv_ta[n] = u
-                            iv_tb[n] = un
-                            iv_obj[n] = obj
-                            iv_cell[n] = cid
-                            n += 1
-                    if un >= tn:
-                        break
-                    if lmx <= lmy and lmx <= lmz:
-                        lx += lsx
-                        lmx += lex
-                        if lx < bx or lx >= bx + NL:
+                x0, y0, z0 = bx + node_box[nid, 0], by + node_box[nid, 1], bz + node_box[nid, 2]
+                x1, y1, z1 = bx + node_box[nid, 3], by + node_box[nid, 4], bz + node_box[nid, 5]
+                u, ue = slab(qx, qy, qz, dx, dy, dz, x0 * leaf, y0 * leaf, z0 * leaf, x1 * leaf,
+                             y1 * leaf, z1 * leaf, t, tn)
+                if u < ue:
+                    lx, lsx, lmx, lex = dda_axis(qx, dx, u, leaf, x0, x1)
+                    ly, lsy, lmy, ley = dda_axis(qy, dy, u, leaf, y0, y1)
+                    lz, lsz, lmz, lez = dda_axis(qz, dz, u, leaf, z0, z1)
+                    while True:
+                        un = min(lmx, lmy, lmz, ue)
+                        if un > u:
+                            cid = node_cells[nid, ((lx - bx) * NL + (ly - by)) * NL + (lz - bz)]
+                            if cid >= 0 and cell_skip[cid] == 0 and n < cap:
+                                iv_ta[n] = u
+                                iv_tb[n] = un
+                                iv_obj[n] = obj
+                                iv_cell[n] = cid
+                                n += 1
+                        if un >= ue:
                             break
-                    elif lmy <= lmz:
-                        ly += lsy
-                        lmy += ley
-                        if ly < by or ly >= by + NL:
-                            break
-                    else:
-                        lz += lsz
-                        lmz += lez
-                        if lz < bz or lz >= bz + NL:
-                            break
-                    if un > u:
-                        u = un
+                        if lmx <= lmy and lmx <= lmz:
+                            lx += lsx
+                            lmx += lex
+                            if lx < x0 or lx >= x1:
+                                break
+                        elif lmy <= lmz:
+                            ly += lsy
+                            lmy += ley
+                            if ly < y0 or ly >= y1:
+                                break
+                        else:
+                            lz += lsz
+                            lmz += lez
+                            if lz < z0 or lz >= z1:
+                                break
+                        if un > u:
+                            u = un
         if tn >= t1:
             break
         if mx <= my and mx <= mz:

@@ -18,6 +18,7 @@ import os
 import numpy as np
 
 from ..jit import njit
+from .bricks import BRICK, leaf_bricks
 
 LEAF = 8
 NODE_LEAVES = 16
@@ -411,7 +412,6 @@ def gaussian_arrays_empty():
     return z, z, np.zeros(0), np.zeros(0)
 
 
-BRICK = LEAF + 2  # voxels 8c-1 .. 8c+8 per axis: enough for trilinear anywhere in the cell
 
 
 def _grid_leaves(grid):
@@ -447,41 +447,23 @@ def build_voxel_accel(objects):
 
     n = len(objects)
     acc = Accel(n)
-    bricks = []
+    bricks, ranges = [], []
     for k, ob in enumerate(objects):
         if ob.grid is None:
             continue
         org, val = _grid_leaves(ob.grid)
         if org.shape[0] == 0:
             continue
-        bg = np.float32(getattr(ob.grid, "background", 0.0) or 0.0)
+        b, blo, bhi = leaf_bricks(org, val, float(getattr(ob.grid, "background", 0.0) or 0.0))
         cells = np.floor_divide(org, LEAF)
-        cmin = cells.min(axis=0) - 1
-        cdim = cells.max(axis=0) - cmin + 2
-        key = ((cells[:, 0] - cmin[0]) * cdim[1] + (cells[:, 1] - cmin[1])) * cdim[2] + (cells[:, 2] - cmin[2])
-        order = np.argsort(key, kind="stable")
-        skey = key[order]
-        b = np.full((org.shape[0], BRICK, BRICK, BRICK), bg, np.float32)
-        spans = {-1: (slice(0, 1), slice(7, 8)), 0: (slice(1, 9), slice(0, 8)), 1: (slice(9, 10), slice(0, 1))}
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                for dz in (-1, 0, 1):
-                    nk = key + (dx * cdim[1] + dy) * cdim[2] + dz
-                    pos = np.clip(np.searchsorted(skey, nk), 0, skey.size - 1)
-                    found = skey[pos] == nk
-                    src = order[pos[found]]
-                    (bx, sx), (by, sy), (bz, sz) = spans[dx], spans[dy], spans[dz]
-                    b[np.nonzero(found)[0][:, None, None, None],
-                      np.arange(10)[bx][None, :, None, None],
-                      np.arange(10)[by][None, None, :, None],
-                      np.arange(10)[bz][None, None, None, :]] = \
-                        val[src][:, sx, sy, sz]
         acc.add(k, cells)
         bricks.append(b)
+        ranges.append((blo, bhi))
     acc.finish()
-    acc.bricks = np.concatenate(bricks) if bricks else np.zeros((1, BRICK, BRICK, BRICK), np.float32)
-    acc.brick_lo = np.nanmin(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
-    acc.brick_hi = np.nanmax(acc.bricks.reshape(acc.bricks.shape[0], -1), axis=1).astype(np.float64)
+    acc.bricks = np.concatenate(bricks) if len(bricks) > 1 else bricks[0] if bricks else \
+        np.zeros((1, BRICK, BRICK, BRICK), np.float32)
+    acc.brick_lo = np.concatenate([r[0] for r in ranges]) if ranges else np.zeros(1)
+    acc.brick_hi = np.concatenate([r[1] for r in ranges]) if ranges else np.zeros(1)
     acc.cell_obj = np.concatenate([np.full(int(c), k, np.int32) for k, c in enumerate(_cell_counts(acc))]) \
         if acc.n_cells else np.zeros(0, np.int32)
     acc.cbricks = object_bricks(objects, acc.cell_obj, acc.cell_xyz)

@@ -427,6 +427,8 @@ class CPUDevice(Device):
         t_setup = self.stats["seconds_setup"]
         r0, r1, c0, c1 = region(frame, rows, cols)
         nr, nc = r1 - r0, c1 - c0
+        # the kernels write float32 passes (rounded from their float64 as astype would); rows a
+        # cancel leaves undrawn stay transparent
         rgba = np.zeros((nr, nc, 4), np.float32)
         depth = np.full((nr, nc), 1e10, np.float32)
         value = np.zeros((nr, nc), np.float32)
@@ -443,13 +445,10 @@ class CPUDevice(Device):
                     cancelled = True
                     break
                 b = min(nr, a + step)
-                o_rgba = np.empty((b - a, nc, 4))
-                o_depth = np.empty((b - a, nc))
-                o_value = np.empty((b - a, nc))
                 self._k.render_rows(int(frame.mode), frame.cam, r0 + a, r0 + b, c0, c1,
                                     frame.gauss, frame.objects, frame.accel, frame.transfer,
-                                    packing.Output(o_rgba, o_depth, o_value, segs[a:b]), threads)
-                rgba[a:b], depth[a:b], value[a:b] = o_rgba, o_depth, o_value
+                                    packing.Output(rgba[a:b], depth[a:b], value[a:b], segs[a:b]),
+                                    threads)
                 a = b
                 if progress is not None:
                     progress(a / nr)

@@ -44,11 +44,12 @@ LIT, LIT_SHADOWS = 1, 2
 # dummy brick when no object has a colour grid).
 Accel = namedtuple("Accel", "node_min node_dims node_off node_table node_cells cell_skip cell_start "
                             "cell_items face_start face_items cell_xyz bricks max_walk t_start "
-                            "t_items t_mask walk_obj walk_scale cbricks")
+                            "t_items t_mask walk_obj walk_scale cbricks node_box")
 # Transfer functions (rows: the scene's, then each object's own), lights (lights.pack) and the
 # scalar settings (pack_settings).
 Transfer = namedtuple("Transfer", "lut par lights settings")
-# The passes of the rows being drawn: rgba, depth, value (float64) and segments per row.
+# The passes of the rows being drawn: rgba, depth, value (float32, the kernels round their float64)
+# and segments per row (float64).
 Output = namedtuple("Output", "rgba depth value segs")
 
 # The CPU kernels' per-thread buffers (render_band allocates them): the leaf walk's intervals
@@ -211,4 +212,22 @@ def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False) -> Accel:
         cbricks = np.zeros((1, 10, 10, 10), np.float32)
     return Accel(acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
                  cell_skip, cell_start, cell_items, face_start, face_items, cell_xyz, bricks,
-                 acc.max_walk, *tiles, acc.walk_obj, acc.walk_scale, cbricks)
+                 acc.max_walk, *tiles, acc.walk_obj, acc.walk_scale, cbricks,
+                 node_boxes(acc.node_cells, cell_skip))
+
+
+def node_boxes(node_cells, cell_skip):
+    """int64 (nodes, 6): per node, the box [lo, hi) (cells, from the node's corner) of its cells
+    that this frame draws (listed and not skipped); lo = hi = 0 where none is."""
+    nl = round(node_cells.shape[1] ** (1 / 3))
+    drawn = node_cells >= 0
+    if cell_skip.shape[0] and drawn.any():
+        drawn[drawn] = cell_skip[node_cells[drawn]] == 0
+    drawn = drawn.reshape(-1, nl, nl, nl)
+    box = np.zeros((drawn.shape[0], 6), np.int64)
+    for a, other in enumerate(((2, 3), (1, 3), (1, 2))):
+        occ = drawn.any(axis=other)  # (nodes, nl): which cell planes along axis a are drawn
+        has = occ.any(axis=1)
+        box[has, a] = np.argmax(occ[has], axis=1)
+        box[has, a + 3] = nl - np.argmax(occ[has, ::-1], axis=1)
+    return box
