@@ -8,17 +8,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
+from ..lod.second_grid import _find
 
 LEAF = 8
 BRICK = LEAF + 2  # voxels 8c-1 .. 8c+8 per axis
-
-
-@njit(cache=True, inline="always")
-def _find(skeys, key):
-    i = np.searchsorted(skeys, key)
-    if i < skeys.shape[0] and skeys[i] == key:
-        return i
-    return -1
 
 
 @njit(cache=True, inline="always")
