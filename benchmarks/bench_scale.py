@@ -1,19 +1,22 @@
 """Scaling benchmark: one volume resampled by integer factors (a resolution series made here, in a
 temporary folder that is removed at exit), and per step the seconds and peak memory of reading it,
-converting it per LOD (with and without the field error), rendering it per mode and, in the same
-run, Blender's Volume object with Cycles at 16 samples (benchmarks/cycles_ref.py; the same camera
-and transfer function as ours, from bench_report.setup_view; its seconds are the frame's after a
-warm-up that syncs the scene, reported as seconds_sync), then the scaling exponent of each (the
-slope of log seconds over log active voxels).
+converting it per LOD (with and without the field error), importing it into Blender per LOD (the
+add-on's import, field error included, as the dialog's default), rendering it per mode and LOD and,
+in the same run, Blender's Volume object with Cycles at 16 samples (benchmarks/cycles_ref.py; the
+same camera and transfer function as ours, from bench_report.setup_view; its seconds are the
+frame's after a warm-up that syncs the scene, reported as seconds_sync), then the scaling exponent
+of each (the slope of log seconds over log active voxels).
 
     python benchmarks/bench_scale.py [--source FILE.vdb] [--factors 1,2,3] [--lods low,medium]
-                                     [--modes particles,reference] [--size 256] [--quick]
-                                     [--no-cycles]
+                                     [--modes particles,reference] [--size 512] [--quick]
+                                     [--no-cycles] [--no-import] [--markdown FILE.md]
 
---quick: the 2x file only. Each measurement runs in a process of its own, so its peak memory
+--quick: the 3x file only. Each measurement runs in a process of its own, so its peak memory
 (ru_maxrss, which includes reading the file the step starts from) is its own; the series is
 written with the bundled openvdb (trilinear upsampling, slab by slab, so making it needs memory
-for a few slabs only). A read is timed the second time in its process (the kernels loaded).
+for a few slabs only). A read is timed the second time in its process (the kernels loaded); a
+render's seconds are its first frame (sync, set-up, drawing) and seconds_frame the next one.
+--markdown writes the table and the exponents (docs/bench/scale.md is made so).
 """
 from __future__ import annotations
 
@@ -90,12 +93,14 @@ def _lerp(s0, s1, u, ax):
 def step(kind, path, lod=None, mode=None, size=256, error=True):
     """Run one measurement here; returns its figures with this process's peak memory."""
     from kernels import pipeline
-    from kernels.vdb import read_vdb
+    from kernels.vdb import read_topology, read_vdb
 
     out = {"step": kind, "lod": lod, "mode": mode, "error": error if kind == "convert" else None}
+    # an import reads the file itself: only the topology here, so the peak is the import's
+    reader = read_topology if kind == "import" else read_vdb
     for _ in range(2 if kind == "read" else 1):  # a read: the second, with the kernels loaded
         t = time.perf_counter()
-        grid = next(g for g in read_vdb(path).grids if g.active_voxels)
+        grid = next(g for g in reader(path).grids if g.active_voxels)
         out["seconds_read"] = time.perf_counter() - t
     out["active_voxels"] = int(grid.active_voxels)
     if kind == "convert":
@@ -118,7 +123,23 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         dev.render(sc, view["cam"], view["tf"])
         out["seconds"] = time.perf_counter() - t  # the first frame: sync, set-up, drawing
         out["seconds_sync"] = dev.stats["seconds_sync"]
+        t = time.perf_counter()
+        dev.render(sc, view["cam"], view["tf"])
+        out["seconds_frame"] = time.perf_counter() - t  # a frame after it (camera moves: this)
         out["gaussians"] = int(gs.count) if gs is not None else 0
+    elif kind == "import":  # the add-on's import in Blender, as the dialog runs it
+        sys.path.insert(0, os.path.join(ROOT, "tools"))
+        from blender_session import start
+
+        bpy = start()
+        from bl_ext.user_default.gaussvdb.gaussvdb_addon.io import importer
+
+        importer.convert_file(SAMPLE, lods=("low",))  # kernels loaded apart, as for convert
+        t = time.perf_counter()
+        objs, msg = importer.import_files(bpy.context, [path], lods=(lod,), sequence=False)
+        out["seconds"] = time.perf_counter() - t
+        out["gaussians"] = sum(len(o.data.points) for o in objs)
+        out["status"] = msg
     elif kind == "cycles":  # Blender's Volume object + Cycles, same camera and transfer function
         from report_external import run_cycles
 
@@ -171,9 +192,13 @@ def main(argv=None):
     ap.add_argument("--factors", default="1,2,3")
     ap.add_argument("--lods", default="low,medium")
     ap.add_argument("--modes", default="particles,reference")
-    ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--quick", action="store_true", help="the 2x file only")
+    ap.add_argument("--size", type=int, default=512)
+    ap.add_argument("--quick", action="store_true", help="the 3x file only")
     ap.add_argument("--no-cycles", action="store_true", help="leave out Cycles (16 samples)")
+    ap.add_argument("--no-import", action="store_true", help="leave out the import into Blender")
+    ap.add_argument("--markdown", help="write the table and exponents to this Markdown file")
+    ap.add_argument("--keep", metavar="DIR", help="make the series in DIR and keep it (files already "
+                    "there are reused) instead of a temporary folder")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--step", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -181,16 +206,20 @@ def main(argv=None):
         print(json.dumps(step(**json.loads(a.step))))
         return 0
     src = a.source or SAMPLE
-    factors = [2] if a.quick else [int(f) for f in a.factors.split(",")]
+    factors = [3] if a.quick else [int(f) for f in a.factors.split(",")]
     lods = a.lods.split(",")
     modes = a.modes.split(",")
-    tmp = tempfile.mkdtemp(prefix="gaussvdb_scale_")
+    tmp = a.keep or tempfile.mkdtemp(prefix="gaussvdb_scale_")
+    os.makedirs(tmp, exist_ok=True)
     rows = []
+    load = [os.getloadavg()[0]]
     try:
         for f in factors:
             path = os.path.join(tmp, f"x{f}.vdb")
             t = time.perf_counter()
-            if f == 1:
+            if a.keep and os.path.exists(path):
+                pass
+            elif f == 1:
                 shutil.copy(src, path)
             else:
                 resample(src, path, f)
@@ -198,6 +227,7 @@ def main(argv=None):
                   file=sys.stderr)
             todo = [("read", {})]
             todo += [("convert", dict(lod=lod, error=e)) for lod in lods for e in (False, True)]
+            todo += [] if a.no_import else [("import", dict(lod=lod)) for lod in lods]
             todo += [("render", dict(lod=lod, mode=mode, size=a.size)) for mode in modes
                      for lod in (lods if mode != "reference" else [None])]
             todo += [] if a.no_cycles else [("cycles", dict(size=a.size))]
@@ -212,13 +242,60 @@ def main(argv=None):
                          f"{r['active_voxels'] / 1e6:8.2f} Mvox {r['seconds']:8.2f} s {r['peak_mb']:8.0f} MB"),
                       flush=True)
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    keys = sorted({(r["step"], r.get("lod"), r.get("mode"), r.get("error")) for r in rows}, key=str)
-    for k in keys:
-        e = exponent([r for r in rows if (r["step"], r.get("lod"), r.get("mode"), r.get("error")) == k])
-        if e is not None:
-            print(f"exponent {k[0]} {k[1] or ''} {k[2] or ''} {'err' if k[3] else ''}: {e:.2f}")
+        if not a.keep:
+            shutil.rmtree(tmp, ignore_errors=True)
+    load.append(os.getloadavg()[0])
+    exps = exponents(rows)
+    for name, e in exps:
+        print(f"exponent {name}: {e:.2f}")
+    if a.markdown:
+        with open(a.markdown, "w") as fh:
+            fh.write(markdown(rows, exps, src, a, load))
     return 0
+
+
+def _label(r):
+    return " ".join(x for x in (r["step"], r.get("lod") or "", r.get("mode") or "",
+                                "+ error" if r.get("error") else "") if x)
+
+
+def exponents(rows):
+    """[(step label, exponent)] for every step measured at two sizes or more."""
+    out = []
+    for lab in dict.fromkeys(_label(r) for r in rows):
+        e = exponent([r for r in rows if _label(r) == lab])
+        if e is not None:
+            out.append((lab, e))
+    return out
+
+
+def markdown(rows, exps, src, a, load):
+    """The series as a Markdown page: one row per step and size, then the exponents."""
+    cmd = "python benchmarks/bench_scale.py " + " ".join(
+        x for x in (f"--source {os.path.basename(src)}" if a.source else "", f"--factors {a.factors}"
+                    if not a.quick else "--quick", f"--lods {a.lods}", f"--modes {a.modes}",
+                    f"--size {a.size}", "--no-cycles" if a.no_cycles else "",
+                    "--no-import" if a.no_import else "") if x)
+    out = [f"# Scaling: {os.path.basename(src)} resampled\n",
+           f"`{cmd}`, {time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, load average "
+           f"{load[0]:.1f} at the start and {load[-1]:.1f} at the end. Each step runs in a process of "
+           "its own; peak = that process's resident high-water mark (Cycles: its render process). "
+           "render: s = the first frame (sync, set-up, drawing), frame = the next one; cycles: s = "
+           "a frame at 16 samples after a warm-up frame that synced the scene (sync).\n",
+           "| size | M voxels | step | s | frame s | sync s | peak MB | Gaussians |",
+           "|---|---:|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if "failed" in r:
+            out.append(f"| x{r['factor']} | | {_label(r)} | failed: {r['failed']} | | | | |")
+            continue
+        f = (lambda k, fmt="{:.2f}": fmt.format(r[k]) if r.get(k) is not None else "")  # noqa: E731
+        out.append(f"| x{r['factor']} | {r['active_voxels'] / 1e6:.1f} | {_label(r)} | {f('seconds')} | "
+                   f"{f('seconds_frame')} | {f('seconds_sync')} | {f('peak_mb', '{:,.0f}')} | "
+                   f"{f('gaussians', '{:,}')} |")
+    out += ["", "Scaling exponent (slope of log seconds over log active voxels):", "",
+            "| step | exponent |", "|---|---:|"]
+    out += [f"| {n} | {e:.2f} |" for n, e in exps]
+    return "\n".join(out) + "\n"
 
 
 if __name__ == "__main__":
