@@ -104,7 +104,7 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     if (one and mode == Mode.REFERENCE and objs.kind[0] == 0 and objs.ctf[0] < 0 and objs.lit[0] == 0
             and xfer.par[tf, 2] < 0.5):  # one fog volume, Emission, linear transfer function
         reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
-                      accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf])
+                      accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear)
         return
     iv_ta, iv_tb, srt, act_iv = scr.iv_ta, scr.iv_tb, scr.srt, scr.act_iv
     cov_obj, cov_cell = scr.cov_obj, scr.cov_cell

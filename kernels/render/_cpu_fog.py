@@ -44,10 +44,11 @@ def equal_steps(p0, p1, dt):
 
 
 @njit(**_hot_fused)
-def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, lut, par):
+def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, lut, par, clear):
     """Composite the n leaf intervals (iv_ta, iv_tb, iv_cell, front to back) of object 0's ray
     (index-space origin ro[0], direction rd[0]) into st; step: the object's step in voxels,
-    lut/par its transfer function's table and parameters."""
+    lut/par its transfer function's table and parameters; clear: per cell its sub-blocks whose
+    samples are all transparent (packing.clear_bits), skipped unread: they would add nothing."""
     ox, oy, oz = ro[0, 0], ro[0, 1], ro[0, 2]
     dx, dy, dz = rd[0, 0], rd[0, 1], rd[0, 2]
     dt = step / math.sqrt(dx * dx + dy * dy + dz * dz)
@@ -62,12 +63,19 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
         p1 = iv_tb[pi]
         cid = iv_cell[pi]
         ns, h = equal_steps(p0, p1, dt)
+        clr = clear[cid]
+        if clr == -1:  # every sub-block transparent: the samples are counted, not taken
+            segs += ns
+            continue
         cxyz = cell_xyz[cid]
         B = bricks[cid]
         for i in range(ns):
             segs += 1
             t = p0 + (i + 0.5) * h
             fx, fy, fz = brick_xyz(cxyz, ox + t * dx, oy + t * dy, oz + t * dz)
+            if clr != 0 and (clr >> ((min(int(fx) >> 1, 3) * 4 + min(int(fy) >> 1, 3)) * 4
+                                     + min(int(fz) >> 1, 3))) & 1:
+                continue  # a transparent sub-block (bricks.sub_max)
             val = trilinear(B, fx, fy, fz)
             if val != val:
                 continue  # NaN: no medium

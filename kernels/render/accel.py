@@ -18,7 +18,7 @@ import os
 import numpy as np
 
 from ..jit import njit
-from .bricks import BRICK, leaf_bricks
+from .bricks import BRICK, leaf_bricks, sub_max
 
 LEAF = 8
 NODE_LEAVES = 16
@@ -462,6 +462,7 @@ def build_voxel_accel(objects):
     acc.finish()
     acc.bricks = np.concatenate(bricks) if len(bricks) > 1 else bricks[0] if bricks else \
         np.zeros((1, BRICK, BRICK, BRICK), np.float32)
+    acc.sub_max = sub_max(acc.bricks)  # the transparent-sample skip's bound (packing.clear_bits)
     acc.brick_lo = np.concatenate([r[0] for r in ranges]) if ranges else np.zeros(1)
     acc.brick_hi = np.concatenate([r[1] for r in ranges]) if ranges else np.zeros(1)
     acc.cell_obj = np.concatenate([np.full(int(c), k, np.int32) for k, c in enumerate(_cell_counts(acc))]) \

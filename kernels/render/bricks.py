@@ -68,3 +68,28 @@ def leaf_bricks(org, val, background):
     _fill(cells, np.ascontiguousarray(key[order]), order, cmin, cdim, np.ascontiguousarray(val, np.float32),
           np.float32(background), out, lo, hi)
     return out, lo, hi
+
+
+SUB = 4  # sub-blocks per brick axis for the transparent-sample skip (clear_bits)
+
+
+@parallel_njit(cache=True)
+def sub_max(bricks):
+    """float32 (N, 64): per brick and sub-block (sx * 4 + sy) * 4 + sz, the max of the voxels that
+    a trilinear sample there reads (NaN ignored: a sample reading one is NaN, drawn as no medium;
+    -inf when all are). Sub-block s holds the samples whose stencil starts at brick voxel
+    2s or 2s + 1 (s = 3: 6..8), so it reads voxels 2s .. 2s + 2 (6 .. 9)."""
+    out = np.empty((bricks.shape[0], SUB ** 3), np.float32)
+    for c in prange(bricks.shape[0]):
+        for sx in range(SUB):
+            for sy in range(SUB):
+                for sz in range(SUB):
+                    m = -np.inf
+                    for i in range(2 * sx, 2 * sx + (4 if sx == SUB - 1 else 3)):
+                        for j in range(2 * sy, 2 * sy + (4 if sy == SUB - 1 else 3)):
+                            for k in range(2 * sz, 2 * sz + (4 if sz == SUB - 1 else 3)):
+                                v = bricks[c, i, j, k]
+                                if v > m:
+                                    m = v
+                    out[c, (sx * SUB + sy) * SUB + sz] = m
+    return out

@@ -371,7 +371,8 @@ class CPUDevice(Device):
         cell_skip = self._cell_skip(mode, acc, gauss.w, tfs, obj_tf, obj_kind)
         if mode == Mode.REFERENCE and acc.n_cells:  # which screen tiles have leaves to walk
             tiles = self._kt.leaf_tiles(camera.packed(), objects.w2i, acc.cell_xyz, acc.cell_obj, cell_skip)
-        accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=mode == Mode.REFERENCE)
+        accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=mode == Mode.REFERENCE,
+                                   xfer=(obj_tf, transfer))
         if (objects.lit == packing.LIT_SHADOWS).any():
             objects = self._shadow_grids(mode, scene, tfs, objects, gauss, accel, transfer)
         return _Frame(mode, camera.packed(), camera.width, camera.height, gauss, objects, accel,

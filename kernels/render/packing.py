@@ -41,10 +41,11 @@ LIT, LIT_SHADOWS = 1, 2
 # entry face), this frame's empty-space skips, voxel bricks (reference mode), the longest walk,
 # this frame's screen-tile lists (starts, ids, pixel masks), per walk grid its object and cell
 # size in leaves, and the colour grids' voxel bricks on the same cells (reference mode; one
-# dummy brick when no object has a colour grid).
+# dummy brick when no object has a colour grid), and per cell this frame's transparent sub-blocks
+# (clear_bits; reference mode, else one zero).
 Accel = namedtuple("Accel", "node_min node_dims node_off node_table node_cells cell_skip cell_start "
                             "cell_items face_start face_items cell_xyz bricks max_walk t_start "
-                            "t_items t_mask walk_obj walk_scale cbricks node_box")
+                            "t_items t_mask walk_obj walk_scale cbricks node_box clear")
 # Transfer functions (rows: the scene's, then each object's own), lights (lights.pack) and the
 # scalar settings (pack_settings).
 Transfer = namedtuple("Transfer", "lut par lights settings")
@@ -193,15 +194,18 @@ def test_records(acc):
 NO_TILES = (np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros(1, np.int64))
 
 
-def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False) -> Accel:
+def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False, xfer=None) -> Accel:
     """acc: the synced Gaussian (or, voxels=True, voxel) acceleration; tiles: (starts, ids,
-    masks), or NO_TILES for the leaf walk."""
+    masks), or NO_TILES for the leaf walk; xfer: (objects' transfer rows, Transfer), for
+    clear_bits."""
     if voxels:
         cell_start, cell_items = np.zeros(2, np.int64), np.zeros(1, np.int32)
         face_start, face_items = np.zeros(7, np.int64), np.zeros(1, np.int32)
         bricks, cell_xyz = acc.bricks, acc.cell_xyz
         cbricks = getattr(acc, "cbricks", None)
+        clear = clear_bits(acc.sub_max, acc.cell_obj, *xfer) if xfer is not None and acc.n_cells else None
     else:
+        clear = None
         cell_start, cell_items = acc.cell_start, acc.cell_items
         face_start, face_items = acc.face_start, acc.face_items
         if cell_items.size == 0:  # no Gaussians, or no lists (the screen tiles need none)
@@ -213,7 +217,33 @@ def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False) -> Accel:
     return Accel(acc.node_min, acc.node_dims, acc.node_off, acc.node_table, acc.node_cells,
                  cell_skip, cell_start, cell_items, face_start, face_items, cell_xyz, bricks,
                  acc.max_walk, *tiles, acc.walk_obj, acc.walk_scale, cbricks,
-                 node_boxes(acc.node_cells, cell_skip))
+                 node_boxes(acc.node_cells, cell_skip), np.zeros(1, np.int64) if clear is None else clear)
+
+
+def clear_bits(sub_max, cell_obj, obj_tf, xfer, chunk=1 << 14):
+    """int64 per cell: bit (sx * 4 + sy) * 4 + sz set where every sample of that sub-block
+    (bricks.sub_max) is transparent under its object's transfer function, so that the one-fog
+    sampler (_cpu_fog) skips it and draws the same image: with a linear table whose first alpha is
+    0, a value v <= lo (hi <= lo: v < hi) takes alpha 0. The bound widens the sub-block's max by
+    the trilinear interpolation's rounding (a few ulps of it; 32 here, and an underflow's), so no
+    sample that would have drawn is skipped; a max of 0 needs none (weights >= 0: a sum of
+    values <= 0 rounds to <= 0). Objects with other tables get no bits."""
+    thr = np.full(len(obj_tf), -np.inf)
+    le = np.zeros(len(obj_tf), bool)  # v == thr is transparent too
+    for k, row in enumerate(obj_tf):
+        lo, hi = xfer.par[row, 0], xfer.par[row, 1]
+        if xfer.par[row, 2] < 0.5 and xfer.lut[row, 0, 3] == 0.0:
+            thr[k], le[k] = (lo, True) if hi > lo else (hi, False)
+    bit = np.left_shift(np.uint64(1), np.arange(sub_max.shape[1], dtype=np.uint64))
+    out = np.zeros(sub_max.shape[0], np.uint64)
+    for a in range(0, sub_max.shape[0], chunk):  # in chunks: a (cells, 64) temporary per step
+        vm = sub_max[a:a + chunk].astype(np.float64)
+        ob = cell_obj[a:a + chunk]
+        with np.errstate(invalid="ignore"):
+            vm = vm + 32.0 * np.finfo(np.float64).eps * np.abs(vm) + np.where(vm == 0.0, 0.0, 1e-300)
+            ok = (vm < thr[ob, None]) | ((vm == thr[ob, None]) & le[ob, None])
+        out[a:a + chunk] = np.bitwise_or.reduce(np.where(ok, bit, np.uint64(0)), axis=1)
+    return out.view(np.int64)
 
 
 def node_boxes(node_cells, cell_skip):

@@ -64,3 +64,19 @@ def test_the_bundled_sample_builds_the_same_bricks():
     b, _, _ = leaf_bricks(org, val, float(g.background or 0.0))
     sel = np.random.default_rng(1).choice(len(org), 12, replace=False)
     np.testing.assert_array_equal(b[sel], voxel_lookup(org, val, np.float32(g.background or 0.0))[sel])
+
+
+def test_sub_block_max_is_the_max_of_the_voxels_its_samples_read():
+    from kernels.render.bricks import sub_max
+
+    org, val = sparse_grid()
+    b, _, _ = leaf_bricks(org, val, BG)
+    b[0, :3, :3, :3] = np.nan  # sub-block 0 of brick 0 all NaN: -inf
+    got = sub_max(b)
+    rd = [range(0, 3), range(2, 5), range(4, 7), range(6, 10)]  # stencils from voxels 2s, 2s + 1
+    for c in range(len(org)):
+        for s in range(64):
+            box = b[c][np.ix_(rd[s // 16], rd[s // 4 % 4], rd[s % 4])]
+            want = np.nanmax(box) if not np.isnan(box).all() else -np.inf
+            assert got[c, s] == np.float32(want)
+    assert got[0, 0] == -np.inf
