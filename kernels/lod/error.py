@@ -4,8 +4,11 @@ s(x) = sum_i value_i amplitude_i exp(-1/2 sum_k ((x_k - c_ik)/sigma_ik)^2), each
 to its k-sigma ellipsoid (k = 4 by default: the cut-off is exp(-8) = 3.4e-4 of the peak; the renderer
 uses the same support). Evaluation uses the leaf structure: every Gaussian is listed (count-then-fill)
 in the cells (leaves, tiles) its support box meets, then each cell sums its list over its 8^3 voxels
-with separable exponentials, in parallel over cells. Per-cell partial sums are reduced in cell order,
-so the numbers do not depend on the thread count.
+with separable exponentials, in parallel over cells. The set's common classes of equal-sigma
+Gaussians on a block lattice (High's 2^3 blocks and voxels) skip the lists: each cell sums them from
+the nodes of the 27 leaves around it (error_lattice.py), the same terms in another order (1e-11).
+Per-cell partial sums are reduced in cell order, so the numbers depend neither on the thread count
+nor on the chunk size.
 
 Reference: fog volumes (and any non-level-set grid) the voxel value; NRMSE divides the RMSE by the
 value range of the active voxels (or by max |value| when the range is 0, as for a constant grid).
@@ -27,12 +30,13 @@ import time
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
+from .error_lattice import class_tables, classify, gather_split, lattice_classes, node_slots
+from .error_lattice_sums import lattice_cell
 from .error_pairs import (
     _OFF,
     _by_cell,
     _count_pairs,
     _fill_pairs,
-    _gather,
     _group_reach,
     _lut_pairs,
     distinct_sigmas,
@@ -179,10 +183,17 @@ def pair_sums(c, g, corg, cent, sig, k2, power, q, e, act, res, wt):
     return num, den
 
 
+CELLS_PER_TASK = 16  # cells per parallel task: one set of scratch arrays per task
+
+
 @parallel_njit(cache=True)
-def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh):
+def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh, keys, nlg,
+                slot, nodes, nper, nw, wr, wnode, qa, ea, tz, ez, nlev, xys, xyt, xyl, xye, cost,
+                nwm, nlm):
     """Per cell: squared residual, max |residual|, active voxels, and the occupancy's
-    intersection and union. hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te, hh)."""
+    intersection and union. hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te, hh).
+    The lattice classes (keys ... nlm: error_lattice_sums.lattice_cell's) first, then the
+    cell's pair list."""
     nc = corg.shape[0]
     sse = np.zeros(nc)
     mx = np.zeros(nc)
@@ -190,31 +201,40 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te,
     inter = np.zeros(nc)
     union = np.zeros(nc)
     k2 = k * k
-    for c in prange(nc):
-        acc = np.zeros(512)
+    for t in prange((nc + CELLS_PER_TASK - 1) // CELLS_PER_TASK):
+        acc = np.empty(512)
         res = np.empty(512)
-        act = np.zeros(512, np.bool_)
+        act = np.empty(512, np.bool_)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
-        for p in range(cstart[c], cstart[c + 1]):
-            g = pg[p]
-            if hh >= 0:
-                _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
-            else:
-                axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
-            _add_gaussian(acc, w[g], k2, q, e)
-        sse[c], mx[c], npts[c] = cell_residual(c, cmask, cref, acc, res, act)
-        it = 0.0
-        un = 0.0
-        for i in range(512):
-            if act[i]:
-                occ = acc[i] >= 0.5
-                ref = cref[c, i] >= 0.5
-                if occ and ref:
-                    it += 1.0
-                if occ or ref:
-                    un += 1.0
-        inter[c], union[c] = it, un
+        nb = np.empty(27, np.int64)
+        W = np.empty(nwm * nwm * nwm)
+        colnz = np.zeros(nwm * nwm, np.bool_)
+        Z = np.empty(nwm * nwm * nlm * 8)
+        for c in range(t * CELLS_PER_TASK, min(nc, (t + 1) * CELLS_PER_TASK)):
+            acc[:] = 0.0
+            act[:] = False
+            lattice_cell(c, corg, k2, keys, nlg, slot, nodes, nper, nw, wr, wnode, qa, ea, tz, ez,
+                         nlev, xys, xyt, xyl, xye, cost, nwm, nlm, nb, W, colnz, Z, acc)
+            for p in range(cstart[c], cstart[c + 1]):
+                g = pg[p]
+                if hh >= 0:
+                    _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
+                else:
+                    axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
+                _add_gaussian(acc, w[g], k2, q, e)
+            sse[c], mx[c], npts[c] = cell_residual(c, cmask, cref, acc, res, act)
+            it = 0.0
+            un = 0.0
+            for i in range(512):
+                if act[i]:
+                    occ = acc[i] >= 0.5
+                    ref = cref[c, i] >= 0.5
+                    if occ and ref:
+                        it += 1.0
+                    if occ or ref:
+                        un += 1.0
+            inter[c], union[c] = it, un
     return sse, mx, npts, inter, union
 
 
@@ -329,7 +349,7 @@ class _Reach:
     minimum from the back of its low end are monotonic, so two binary searches bound the leaf
     Gaussians; tile groups (few, any size) are tested one by one."""
 
-    def __init__(self, gset, k):
+    def __init__(self, gset, k, lattice=True):
         self.gs, gstart, nl = gset, gset.group_start, gset.n_leaf_groups
         self.origins = np.asarray(gset.group_origins).reshape(-1, 3)
         lo, hi = _group_reach(self.origins, gstart, gset.offsets, gset.sigmas, float(k))
@@ -338,48 +358,69 @@ class _Reach:
         self.tlo, self.thi, self.nl = lo[nl:], hi[nl:], nl
         self.u, few = distinct_sigmas(gset.sigmas)
         self.tables = axis_tables(self.u, k) if few and len(self.u) else None
+        csig, ce = lattice_classes(gset, k) if lattice else _NO_CLASSES
+        self.ce, self.lattice = ce, class_tables(csig, ce, k)
+        self.cls = classify(gstart, nl, gset.offsets, gset.sigmas, csig, ce)
+        self.buf = np.zeros(0)
 
     def geometry(self, xa, xb):
-        """The Gaussians whose boxes reach cell x in [xa, xb], in increasing index order (so each
-        cell sums them in the set's order): (centres, sigmas, weights, axis-table arguments of
-        _eval_cells)."""
+        """The Gaussians whose boxes reach cell x in [xa, xb]: those of no lattice class in
+        increasing index order (so each cell sums them in the set's order) as (centres, sigmas,
+        weights, axis-table arguments of _eval_cells), and the lattice arguments of _eval_cells
+        (the classes' nodes of the leaf groups within reach)."""
         g = self.gs
         g0 = int(np.searchsorted(self.pmax, xa, "left"))
         g1 = max(g0, int(np.searchsorted(self.smin, xb, "right")))
         tsel = np.flatnonzero((self.thi >= xa) & (self.tlo <= xb)) + self.nl
         grp = np.concatenate([np.arange(g0, g1, dtype=np.int64), tsel])
         u = self.u if len(self.u) else np.zeros(1)
-        cent, sig, w, c2, sid, lattice = _gather(grp, g.group_start, self.origins, g.offsets,
-                                                 g.sigmas, g.values, g.amplitudes, u)
+        cls, rest, held = self.cls
+        slot, size = node_slots(grp, held, self.lattice[0])
+        if size > len(self.buf):  # kept from chunk to chunk: its pages are touched once
+            self.buf = np.empty(int(size * 1.25))
+        nodes = self.buf[:size]
+        cent, sig, w, c2, sid, lattice, keys = gather_split(
+            grp, g.group_start, self.origins, g.offsets, g.sigmas, g.values, g.amplitudes, u, cls,
+            rest, self.ce, self.lattice[0], slot, nodes)
+        lat = (keys, g1 - g0, slot, nodes, *self.lattice)
         if lattice and self.tables is not None:
-            return cent, sig, w, (c2, sid, *self.tables)
-        return cent, sig, w, _NO_TABLES
+            return cent, sig, w, (c2, sid, *self.tables), lat
+        return cent, sig, w, _NO_TABLES, lat
 
 
 _NO_TABLES = (np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int32), np.zeros((0, 0)),
               np.zeros((0, 0)), -1)
+_NO_CLASSES = (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int64))
+# _eval_cells' lattice arguments without any class (every Gaussian on the pair lists)
+_NO_LATTICE = (np.zeros(0, np.int64), 0, np.zeros((0, 0), np.int64), np.zeros(0),
+               *class_tables(*_NO_CLASSES, DEFAULT_K))
 
 
 LUT_CELLS = 1 << 22  # a chunk's dense cell box (int32) up to 16 MB
-DEFAULT_CHUNK = 8192  # cells per evaluation chunk: ~500 pairs each at High, ~100 MB with its Gaussians
+DEFAULT_CHUNK = 8192  # cells per evaluation chunk: bounds its pair lists (~500 a cell) and class nodes
 
 
-def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK):
+def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK, lattice=True):
     """The per-cell figures of _eval_cells over every cell (sorted by key), a chunk of cells at a
     time: each chunk lists only its own pairs, with its Gaussians in the set's order, so every
-    cell sums the same terms in the same order as one list over all cells would."""
+    cell sums the same terms in the same order as one list over all cells would. The lattice
+    classes (error_lattice.py; ``lattice=False``: none) are summed from their nodes instead, the
+    same terms in another order, again the same for any chunk."""
     t = cell_index(grid, gset)
     nc, kk = len(t["keys"]), float(k)
     out = [np.zeros(nc) for _ in range(5)]
-    reach = _Reach(gset, kk)
+    # the lattice sums take cells on the leaf lattice (tiles are aligned to their size)
+    reach = _Reach(gset, kk, lattice and not np.any(t["corg"] & 7))
     pairs = 0
     for a in range(0, nc, max(1, int(chunk))):
         b = min(nc, a + max(1, int(chunk)))
         keys, corg = t["keys"][a:b], t["corg"][a:b]
-        cent, sig, w, tab = reach.geometry(corg[0, 0] >> 3, corg[-1, 0] >> 3)
+        cent, sig, w, tab, lat = reach.geometry(corg[0, 0] >> 3, corg[-1, 0] >> 3)
         lmin = corg.min(0) >> 3
         dims = (corg.max(0) >> 3) - lmin + 1
-        if np.prod(dims) <= LUT_CELLS:  # the chunk's cells in a dense box
+        if len(cent) == 0:  # every Gaussian within reach is on the lattice
+            start, pc = np.zeros(1, np.int64), np.zeros(0, np.int32)
+        elif np.prod(dims) <= LUT_CELLS:  # the chunk's cells in a dense box
             lut = np.full(tuple(dims), -1, np.int32)
             rel = (corg >> 3) - lmin
             lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(b - a, dtype=np.int32)
@@ -394,7 +435,7 @@ def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK):
         del pc
         pairs += len(pg)
         cref = _cref(t["ref"], t["rows"][a:b], t["is_ls"])
-        res = _eval_cells(corg, t["cmask"][a:b], cref, cstart, pg, cent, sig, w, kk, *tab)
+        res = _eval_cells(corg, t["cmask"][a:b], cref, cstart, pg, cent, sig, w, kk, *tab, *lat)
         for o, r in zip(out, res):
             o[a:b] = r
     return dict(t, pairs=pairs, k=kk), out

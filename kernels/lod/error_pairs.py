@@ -1,6 +1,7 @@
 """The field error's pair lists (error.py): which leaf cells each Gaussian's k-sigma box meets
 (sorted cell keys, or a chunk's dense cell box), counted then filled in parallel, grouped by cell
-with a counting sort; and the chunks' Gaussians gathered with their reach in cells."""
+with a counting sort; and the groups' reach in cells (the chunks' Gaussians are gathered by
+error_lattice.gather_split)."""
 from __future__ import annotations
 
 import numpy as np
@@ -163,42 +164,3 @@ def distinct_sigmas(sig, most=64):
                 u[n] = v
                 n += 1
     return u[:n], True
-
-
-@parallel_njit(cache=True)
-def _gather(grp, gstart, origins, offsets, sigmas, values, amps, u):
-    """Centres and sigmas (float64, as GaussianSet.centers() and setup make them) and weights
-    of the Gaussians of groups grp, in order; with u (the set's distinct sigmas) also their
-    doubled centres (int64) and sigma ids for the axis tables, and whether every centre is on
-    the half-voxel lattice."""
-    ng = grp.shape[0]
-    first = np.zeros(ng + 1, np.int64)
-    for i in range(ng):
-        first[i + 1] = first[i] + gstart[grp[i] + 1] - gstart[grp[i]]
-    m = first[ng]
-    cent = np.empty((m, 3))
-    sig = np.empty((m, 3))
-    w = np.empty(m)
-    c2 = np.zeros((m, 3), np.int64)
-    sid = np.zeros((m, 3), np.int32)
-    off = np.zeros(ng, np.bool_)
-    for i in prange(ng):
-        gi = grp[i]
-        for j in range(gstart[gi], gstart[gi + 1]):
-            o = first[i] + j - gstart[gi]
-            w[o] = np.float64(values[j]) * np.float64(amps[j])
-            for a in range(3):
-                c = np.float64(origins[gi, a]) + np.float64(offsets[j, a])
-                s = np.float64(sigmas[j, a])
-                cent[o, a] = c
-                sig[o, a] = s
-                h = np.rint(2.0 * c)
-                if h != 2.0 * c or abs(h) >= 2.0 ** 52:
-                    off[i] = True
-                else:
-                    c2[o, a] = np.int64(h)
-                t = 0
-                while t < u.shape[0] - 1 and u[t] != s:
-                    t += 1
-                sid[o, a] = t
-    return cent, sig, w, c2, sid, not off.any()

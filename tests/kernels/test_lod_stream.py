@@ -25,7 +25,7 @@ def one_pass(grid, gs):
     st = E.setup(grid, gs)
     w = gs.values.astype(np.float64) * gs.amplitudes.astype(np.float64)
     return E._eval_cells(st["corg"], st["cmask"], st["cref"], st["cstart"], st["pg"], st["cent"],
-                         st["sig"], w, st["k"], *E._NO_TABLES)
+                         st["sig"], w, st["k"], *E._NO_TABLES, *E._NO_LATTICE)
 
 
 CASES = [("high", "fog_volume"), ("low", "fog_volume"), ("variance", "fog_volume"),
@@ -39,11 +39,19 @@ def test_chunked_error_equals_one_pass(preset, cls):
         g = with_tiles(g)
     gs = build_lod(g, preset)
     ref = one_pass(g, gs)
+    first = None
     for chunk in (1, 7, 10 ** 9):
-        st, got = E._evaluate(g, gs, E.DEFAULT_K, chunk)
+        st, got = E._evaluate(g, gs, E.DEFAULT_K, chunk, lattice=False)
         for a, b in zip(ref, got):
             assert np.array_equal(a, b), (preset, chunk)
         assert st["pairs"] == len(E.setup(g, gs)["pg"])
+        # the lattice path: the same figures but for the order of the additions, whatever the chunk
+        _, lat = E._evaluate(g, gs, E.DEFAULT_K, chunk)
+        for a, b in zip(ref, lat):
+            np.testing.assert_allclose(b, a, rtol=1e-11, atol=1e-300)
+        first = first or lat
+        for a, b in zip(first, lat):
+            assert np.array_equal(a, b), (preset, chunk)
     assert field_error(g, gs, chunk=3) == {**field_error(g, gs), "seconds": pytest.approx(0, abs=1e9)}
 
 
@@ -51,7 +59,7 @@ def test_off_lattice_centres_take_the_direct_terms():
     g = random_sparse_grid(5, n_leaves=20, span=3)
     gs = build_lod(g, "high")
     gs = dataclasses.replace(gs, offsets=gs.offsets + np.float32(0.25))  # no half-voxel lattice
-    _, got = E._evaluate(g, gs, E.DEFAULT_K, 4)
+    _, got = E._evaluate(g, gs, E.DEFAULT_K, 4)  # no lattice class: all on the pair lists
     for a, b in zip(one_pass(g, gs), got):
         assert np.array_equal(a, b)
     assert got[0].sum() > 0
