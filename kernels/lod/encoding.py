@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .bitpack import leaf_ranges, leaf_streams, pack, unpack
 from .gaussian_set import GaussianSet
-from .weights import amplitudes64, factors_from_codes, quantize_factors, sigmas_from_codes
+from .weights import amplitudes64, factors_from_codes, field_amplitudes_match, quantize_factors, sigmas_from_codes
 
 VERSION = 2  # 1: int64 "meta" + float arrays; 2: one varint "header" (both are decoded)
 VALUE_TOL = 1e-3
@@ -109,27 +110,6 @@ def _bitlen(x: int) -> int:
     return int(x).bit_length()
 
 
-def pack(vals, width):
-    """Unsigned ints -> little-endian bit stream of `width` bits each."""
-    vals = np.asarray(vals, np.uint64).ravel()
-    if width == 0 or len(vals) == 0:
-        return np.zeros(0, np.uint8)
-    shifts = np.arange(width, dtype=np.uint64)
-    out = []
-    step = 1 << 20  # multiple of 8 values: every chunk ends on a byte boundary
-    for i in range(0, len(vals), step):
-        bits = ((vals[i:i + step, None] >> shifts) & np.uint64(1)).astype(np.uint8)
-        out.append(np.packbits(bits.ravel(), bitorder="little"))
-    return np.concatenate(out)
-
-
-def unpack(buf, width, n):
-    if width == 0 or n == 0:
-        return np.zeros(n, np.int64)
-    bits = np.unpackbits(buf, bitorder="little", count=n * width).reshape(n, width)
-    return (bits.astype(np.int64) << np.arange(width, dtype=np.int64)).sum(axis=1)
-
-
 def _enc_coords(L, name):
     """Sorted distinct int coordinates -> bitmap over their bbox or packed, whichever is smaller."""
     lmin = L.min(0)
@@ -166,78 +146,34 @@ def encoded_nbytes(enc: dict) -> int:
     return int(sum(np.asarray(a).nbytes for a in enc.values()))
 
 
-CHUNK = 1 << 21  # Gaussians per pass of the per-Gaussian streams (a multiple of 8: whole bytes)
+CHUNK = 1 << 21  # Gaussians per pass of the value and amplitude checks
 
 
 def _chunks(n, step=CHUNK):
     return [(i, min(n, i + step)) for i in range(0, n, step)]
 
 
-class _Packer:
-    """pack() of a stream given in pieces of any length: whole bytes are packed as they come, the
-    last < 8 values wait for the next piece (the same bytes as one pack of the whole stream)."""
-
-    def __init__(self, width):
-        self.width, self.out, self.rest = width, [], np.zeros(0, np.uint64)
-
-    def add(self, vals):
-        v = np.concatenate([self.rest, np.asarray(vals, np.uint64).ravel()])
-        cut = len(v) - len(v) % 8
-        self.out.append(pack(v[:cut], self.width))
-        self.rest = v[cut:]
-
-    def bytes(self):
-        self.out.append(pack(self.rest, self.width))
-        return np.concatenate(self.out)
-
-
 def _leaf_streams(g, ml, meta):
-    """Centres, size codes, sphere flags and explicit voxel counts of the ml leaf-group Gaussians,
-    in chunks (the whole-set int64 and float64 copies were the encoder's peak memory): a pass for
-    the ranges and modes, then one that packs. Fills meta; returns the streams."""
-    cmin, cmax, smin, smax, vmax = np.inf, -np.inf, np.inf, -np.inf, -1
-    nsph = 0
-
-    def piece(i, j):
-        off = g.offsets[i:j].astype(np.float64)
-        c2 = np.rint(off * 2).astype(np.int64)
-        if not np.array_equal(c2 * 0.5, off):
-            raise ValueError("centres must lie on the half-voxel lattice")
-        codes = g.size_codes[i:j].astype(np.int64)
-        sph = (codes[:, 0] == codes[:, 1]) & (codes[:, 1] == codes[:, 2])
-        flat = codes[np.arange(3)[None, :] < np.where(sph, 1, 3)[:, None]]  # spheres 1 code
-        vox = g.voxels[i:j].astype(np.int64)
-        explicit = vox != codes[:, 0] * codes[:, 1] * codes[:, 2]
-        return c2, sph, flat, vox, explicit
-
-    for i, j in _chunks(ml):
-        c2, sph, flat, vox, explicit = piece(i, j)
-        cmin, cmax = min(cmin, int(c2.min())), max(cmax, int(c2.max()))
-        smin, smax = min(smin, int(flat.min())), max(smax, int(flat.max()))
-        nsph += int(sph.sum())
-        if explicit.any():
-            vmax = max(vmax, int(vox[explicit].max()))
+    """Centres, size codes, sphere flags and explicit voxel counts of the ml leaf-group Gaussians
+    (bitpack.py: the ranges and modes in one pass, every stream in a second, with no per-Gaussian
+    copies). Fills meta; returns the streams."""
+    cmin, cmax, exact, smin, smax, nsph, nexp, vmax = (
+        int(x) for x in leaf_ranges(g.offsets, g.size_codes, g.voxels, ml))
+    if not exact:
+        raise ValueError("centres must lie on the half-voxel lattice")
     meta.update(cmin=cmin, w_c=_bitlen(cmax - cmin), smin=smin, w_s=_bitlen(smax - smin),
                 sphere_mode=0 if nsph == ml else 1 if nsph == 0 else 2)
     if vmax >= 0:
         meta.update(v_mode=1, w_v=_bitlen(vmax))
-    centre, sizes, vexp = _Packer(meta["w_c"]), _Packer(meta["w_s"]), _Packer(meta["w_v"])
-    sflags, vflags = [], []
-    for i, j in _chunks(ml):
-        c2, sph, flat, vox, explicit = piece(i, j)
-        centre.add(c2 - cmin)
-        sizes.add(flat - smin)
-        if meta["sphere_mode"] == 2:
-            sflags.append(np.packbits(sph.astype(np.uint8), bitorder="little"))
-        if vmax >= 0:
-            vflags.append(np.packbits(explicit.astype(np.uint8), bitorder="little"))
-            vexp.add(vox[explicit])
-    enc = dict(centre=centre.bytes())  # the keys in the order the encoding always had
-    if sflags:
-        enc["sphere_flags"] = np.concatenate(sflags)
-    enc["sizes"] = sizes.bytes()
-    if vflags:
-        enc.update(v_flags=np.concatenate(vflags), v_explicit=vexp.bytes())
+    centre, sizes, sflags, vflags, vexp = leaf_streams(
+        g.offsets, g.size_codes, g.voxels, ml, cmin, meta["w_c"], smin, meta["w_s"], nsph,
+        meta["sphere_mode"] == 2, nexp, meta["w_v"], vmax >= 0)
+    enc = dict(centre=centre)  # the keys in the order the encoding always had
+    if meta["sphere_mode"] == 2:
+        enc["sphere_flags"] = sflags
+    enc["sizes"] = sizes
+    if vmax >= 0:
+        enc.update(v_flags=vflags, v_explicit=vexp)
     return enc
 
 
@@ -316,10 +252,9 @@ def encode_compact(g: GaussianSet) -> dict:
     # -- amplitudes: derived from sigma and V; a refined set stores its quantized factors
     meta.update(amp_mode=0, amp_cmin=0, w_amp=0)
     if g.count and g.weights == "field":
-        tv = g.true_voxels()
-        if not all(np.array_equal(amplitudes64(g.sigmas[i:j], tv[i:j], "field").astype(np.float32),
-                                  g.amplitudes[i:j]) for i, j in _chunks(g.count)):
-            a0 = amplitudes64(g.sigmas, tv, "field")
+        ml = int(g.group_start[g.n_leaf_groups])
+        if not field_amplitudes_match(g.sigmas, g.voxels, g.amplitudes, ml, g.true_voxels(ml)):
+            a0 = amplitudes64(g.sigmas, g.true_voxels(), "field")
             c = quantize_factors(g.amplitudes.astype(np.float64) / a0)
             if np.array_equal((a0 * factors_from_codes(c)).astype(np.float32), g.amplitudes):
                 cmin = int(c.min())

@@ -71,14 +71,15 @@ class GaussianSet:
         """float64 (M, 3) absolute index-space centres."""
         return self.group_origins[self.group_of()].astype(np.float64) + self.offsets
 
-    def true_voxels(self) -> np.ndarray:
-        """Represented voxels as float64, tiles from their true edge (int32 voxels saturate)."""
-        vox = self.voxels.astype(np.float64)
-        ml = int(self.group_start[self.n_leaf_groups])
+    def true_voxels(self, first=0) -> np.ndarray:
+        """Represented voxels as float64 (of rows ``first`` on), tiles from their true edge
+        (int32 voxels saturate)."""
+        vox = self.voxels[first:].astype(np.float64)
+        ml = max(int(self.group_start[self.n_leaf_groups]), first)
         if ml < self.count:
             if self.size_codes is not None:
                 e = self.size_codes[ml:].astype(np.float64)
             else:
                 e = np.rint(self.sigmas[ml:].astype(np.float64) / np.float64(self.sigma_scale))
-            vox[ml:] = e[:, 0] * e[:, 1] * e[:, 2]
+            vox[ml - first:] = e[:, 0] * e[:, 1] * e[:, 2]
         return vox

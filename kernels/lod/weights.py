@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit
+from ..jit import njit, parallel_njit, prange
 
 DEFAULT_SIGMA_FACTOR = 0.6
 TWO_PI_32 = (2.0 * np.pi) ** 1.5
@@ -53,6 +53,24 @@ def amplitudes(sigmas, voxels, weights, factors=None):
     if factors is not None:
         a = a * factors
     return a.astype(np.float32)
+
+
+@parallel_njit(cache=True)
+def field_amplitudes_match(sigmas, voxels, amps, first, tvox):
+    """Whether amps are exactly the unrefined field amplitudes (amplitudes64 cast to float32,
+    the same operations) of sigmas and the voxel counts: voxels below row ``first``, the true
+    counts tvox (float64, GaussianSet.true_voxels) from there on."""
+    n = amps.shape[0]
+    blocks = 64
+    bad = np.zeros(blocks, np.bool_)
+    for b in prange(blocks):
+        for j in range(b * n // blocks, (b + 1) * n // blocks):
+            v = np.float64(voxels[j]) if j < first else tvox[j - first]
+            s = TWO_PI_32 * np.float64(sigmas[j, 0]) * np.float64(sigmas[j, 1]) * np.float64(sigmas[j, 2])
+            if np.float32(v / s) != amps[j]:
+                bad[b] = True
+                break
+    return not bad.any()
 
 
 # ---- compiled writer: what build_lod uses. Same float64 operations in the same order as the numpy
