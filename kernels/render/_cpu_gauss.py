@@ -69,6 +69,7 @@ from ._cpu_chords import (
     chord,
     close_interval,
     entry_face,
+    peak,
     reset_bounds,
     spread_of,
     sweep_start,
@@ -417,15 +418,15 @@ NB = 32  # candidates tested per block (trace_tiles)
 
 @njit(**_hot, inline="always")
 def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
-    """The tests (chord) of candidates cand[:nc] into blk[c] = s, e, ts, aa, qq, ra, pk, apart
-    from the queue insertion: no branch then waits on a candidate's division and roots (together
-    they cost ~18% more on dense volumes)."""
+    """The tests (chord) of candidates cand[:nc] into blk[c] = s, e, ts, aa, qq, ra (the peak is
+    taken for hits only, as they are queued), apart from the queue insertion: no branch then
+    waits on a candidate's division and roots (together they cost ~18% more on dense volumes)."""
     one = ro.shape[0] == 1
     for c in range(nc):
         g = cand[c]
         ob = 0 if one else g_obj[g]
-        (blk[c, 0], blk[c, 1], blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5],
-         blk[c, 6]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
+        (blk[c, 0], blk[c, 1], blk[c, 2], blk[c, 3], blk[c, 4],
+         blk[c, 5]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
                             g_rec, k2, max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]))
 
 
@@ -467,7 +468,8 @@ def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2,
             if nh >= H.shape[0]:
                 return OVERFLOW
             nq = add_hit(H, hid, ev_t, ev_k, ev_h, q0, nq, nh, cand[c], blk[c, 0], blk[c, 1],
-                         blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5], blk[c, 6])
+                         blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5],
+                         peak(cand[c], g_rec, blk[c, 4], k2))
             nh += 1
         qs[NH] = nh
         qs[NQ] = nq
