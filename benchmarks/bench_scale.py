@@ -134,7 +134,8 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         bpy = start()
         from bl_ext.user_default.gaussvdb.gaussvdb_addon.io import importer
 
-        importer.convert_file(SAMPLE, lods=("low",))  # kernels loaded apart, as for convert
+        for o in importer.import_files(bpy.context, [SAMPLE], lods=(lod,), sequence=False)[0]:
+            bpy.data.objects.remove(o)  # kernels (conversion, objects) loaded apart, as for convert
         t = time.perf_counter()
         objs, msg = importer.import_files(bpy.context, [path], lods=(lod,), sequence=False)
         out["seconds"] = time.perf_counter() - t

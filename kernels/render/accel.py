@@ -303,6 +303,21 @@ def available_bytes():
         return None
 
 
+# Screen-tile lists: a frame keeps them up to this many entries per Gaussian (a High set of
+# 40 M small supports needs 1-2; a camera inside a dense volume puts every support near the eye
+# plane in every tile, and then the leaf walk is cheaper), and while the memory holds them.
+TILE_FANOUT = 8
+TILE_ENTRY_BYTES = 32  # an id, a pixel mask, and the counting and filling passes' temporaries
+
+
+def tile_budget(m, floor):
+    """Most screen-tile entries a frame of m Gaussians builds (at least ``floor``, the fixed
+    budget that predates scale; past it the lists must also fit the available memory)."""
+    avail = available_bytes()
+    room = avail // TILE_ENTRY_BYTES if avail is not None else floor
+    return max(floor, min(TILE_FANOUT * int(m), room))
+
+
 def check_halo_memory(acc, available=None):
     """Raise MemoryError (one line, with advice that helps) when the halo lists cannot fit in the
     memory available (``available`` bytes; default: the system's now)."""

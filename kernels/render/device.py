@@ -22,7 +22,7 @@ import numpy as np
 
 from ..cachedir import set_cache_root
 from . import packing
-from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds
+from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds, tile_budget
 from .camera import Camera
 from .scene import Mode, RenderScene, same_geometry
 from .transfer import TransferFunction, range_alpha, resampled
@@ -279,7 +279,7 @@ class CPUDevice(Device):
     def _screen_tiles(self, mode, scene, camera, g_w):
         """Per-frame screen-tile lists for the particles and field modes (_cpu_tiles): starts,
         ids, pixel masks and each Gaussian's entry bound; or empty arrays (the kernels then walk
-        the leaf hierarchy) when switched off or when the lists would pass MAX_TILE_ENTRIES (a
+        the leaf hierarchy) when switched off or when the lists would pass accel.tile_budget (a
         camera inside a dense volume puts every support near the eye plane in every tile)."""
         none = packing.NO_TILES + (None,)
         A = self.gacc
@@ -290,7 +290,7 @@ class CPUDevice(Device):
             return packing.NO_TILES + (np.zeros(m),)
         i2w = [np.asarray(o.matrix_world, np.float64) for o in scene.objects]
         tiles = self._kt.screen_tiles(camera.packed(), i2w, A.g_mu, A.g_inv, A.g_obj, g_w,
-                                      float(scene.support_k), MAX_TILE_ENTRIES)
+                                      float(scene.support_k), tile_budget(m, MAX_TILE_ENTRIES))
         return none if tiles is None else tiles
 
     def _frame_key(self, mode, scene, camera, prep):

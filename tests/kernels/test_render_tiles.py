@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays
+from kernels.render import accel as accel_mod
 from kernels.render import device as device_mod
 from kernels.render.synthetic import gaussian_set
 
@@ -80,6 +81,7 @@ def test_tile_lists_over_budget_fall_back_to_the_walk(monkeypatch):
     cam = CAMERAS["persp"](0.0)
     a = render(dev, objs, cam, "particles", True)
     monkeypatch.setattr(device_mod, "MAX_TILE_ENTRIES", 10)
+    monkeypatch.setattr(accel_mod, "TILE_FANOUT", 0)
     start, *_ = dev._screen_tiles(0, RenderScene(objs), cam, np.ones(dev.gacc.g_mu.shape[0]))
     assert start.shape[0] == 1  # no lists: the kernels walk the leaves
     b = render(dev, objs, cam, "particles", True)
@@ -154,3 +156,15 @@ def test_supports_straddling_the_eye_plane_cover_only_what_they_can():
     tiles = np.repeat(np.arange(64), np.diff(start))[items == g[3]]
     # its front part spans u >= -0.3 (x / -z); the bound is -0.437: image columns 8 and up
     assert 0 < tiles.size < 64 and (tiles % 8).min() == 1
+
+
+def test_tile_budget_grows_with_the_set_within_the_memory(monkeypatch):
+    """A set of many small supports (x4 High: 24 M Gaussians, ~36 M entries) keeps its screen
+    tiles instead of falling back to per-leaf lists (42 GiB there); the memory still caps it."""
+    monkeypatch.setattr(accel_mod, "available_bytes", lambda: 16 << 30)
+    assert accel_mod.tile_budget(24_000_000, 24_000_000) == 8 * 24_000_000
+    assert accel_mod.tile_budget(1000, 24_000_000) == 24_000_000  # the fixed budget stays a floor
+    monkeypatch.setattr(accel_mod, "available_bytes", lambda: 256 << 20)
+    assert accel_mod.tile_budget(24_000_000, 24_000_000) == 24_000_000
+    monkeypatch.setattr(accel_mod, "available_bytes", lambda: None)
+    assert accel_mod.tile_budget(24_000_000, 10) == 10
