@@ -13,15 +13,7 @@ from kernels.lod import error as E
 from kernels.lod import error_lattice as L
 from kernels.lod import error_lattice_sums as S
 from kernels.lod.synthetic import random_sparse_grid
-
-
-def with_tiles(g):
-    g.tile_origins = np.array([[96, 0, 0], [-256, -256, 128]], np.int32)  # an 8^3 and a 128^3 tile
-    g.tile_sizes = np.array([8, 128], np.int32)
-    g.tile_values = np.array([0.3, 0.6], np.float32)
-    g.tile_active = np.array([True, True])
-    return g
-
+from tests.kernels.test_lod_stream import with_tiles
 
 CASES = [("high", "fog_volume"), ("low", "fog_volume"), ("variance", "fog_volume"),
          ("merged", "fog_volume"), ("medium", "fog_volume"), ("high", "level_set"),
