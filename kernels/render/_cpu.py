@@ -337,7 +337,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
                   np.empty((accel.walk_obj.shape[0], 3), np.int64), np.empty(n_obj),
                   np.empty(n_obj, np.int64),
                   np.empty(5), np.empty(6), np.empty(6), np.empty(NST), np.empty(6, np.int64),
-                  np.empty(5), np.empty(NB, np.int64), np.empty((NB, 8)), np.empty((n_obj, 5)),
+                  np.empty(5), np.empty(NB, np.int64), np.empty((16, NB)), np.empty((n_obj, 5)),
                   np.empty(6), np.empty((n_obj, 3)), np.empty(n_obj))
     cap = 256
     hits = ray_scratch(cap)

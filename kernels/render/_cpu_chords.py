@@ -233,12 +233,12 @@ def sweep_start(mode, qs, fs, cb, rd, obj_step):
 
 
 @njit(**_hot, inline="always")
-def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf):
-    """The exact ray/support test of Gaussian g (object-index-space ray), without branches: s, e,
-    ts, aa, qq, ra (chord clipped to the ray's [tn, tf], closest approach, |d'|^2, its squared
-    distance, 1 / |d'|); a miss has s >= e. One division and two roots."""
-    ix, iy, iz = g_rec[g, 3], g_rec[g, 4], g_rec[g, 5]
-    wx, wy, wz = (ox - g_rec[g, 0]) * ix, (oy - g_rec[g, 1]) * iy, (oz - g_rec[g, 2]) * iz
+def chord_of(mx, my, mz, ix, iy, iz, ox, oy, oz, dx, dy, dz, k2, tn, tf):
+    """The exact ray/support test of a Gaussian centred at m with 1/sigma i (object-index-space
+    ray), without branches: s, e, ts, aa, qq, ra (chord clipped to the ray's [tn, tf], closest
+    approach, |d'|^2, its squared distance, 1 / |d'|); a miss has s >= e. One division and two
+    roots."""
+    wx, wy, wz = (ox - mx) * ix, (oy - my) * iy, (oz - mz) * iz
     vx, vy, vz = dx * ix, dy * iy, dz * iz
     aa = vx * vx + vy * vy + vz * vz
     bb = wx * vx + wy * vy + wz * vz
@@ -250,6 +250,13 @@ def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf):
     hw = math.sqrt(max(k2 - qq, 0.0)) * ra
     s = max(ts - hw, tn) if qq < k2 else INF
     return s, min(ts + hw, tf), ts, aa, qq, ra
+
+
+@njit(**_hot, inline="always")
+def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf):
+    """chord_of for Gaussian g's record in g_rec."""
+    return chord_of(g_rec[g, 0], g_rec[g, 1], g_rec[g, 2], g_rec[g, 3], g_rec[g, 4], g_rec[g, 5],
+                    ox, oy, oz, dx, dy, dz, k2, tn, tf)
 
 
 @njit(**_hot, inline="always")

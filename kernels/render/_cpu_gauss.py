@@ -67,6 +67,7 @@ from ._cpu_chords import (
     V,
     add_hit,
     chord,
+    chord_of,
     close_interval,
     entry_face,
     peak,
@@ -418,15 +419,27 @@ NB = 32  # candidates tested per block (trace_tiles)
 
 @njit(**_hot, inline="always")
 def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
-    """The tests (chord) of candidates cand[:nc] into blk[c] = s, e, ts, aa, qq, ra (the peak is
-    taken for hits only, as they are queued), apart from the queue insertion: no branch then
-    waits on a candidate's division and roots (together they cost ~18% more on dense volumes)."""
-    one = ro.shape[0] == 1
+    """The tests (chord) of candidates cand[:nc] into blk[0:6, c] = s, e, ts, aa, qq, ra (the peak
+    is taken for hits only, as they are queued), apart from the queue insertion: no branch then
+    waits on a candidate's division and roots. One object: the candidates' records are gathered
+    into blk[8:14] first, so the tests run over the block in SIMD lanes (the same operations:
+    the same bits; 1.1-1.15x a dense Low frame)."""
+    if ro.shape[0] == 1:
+        for c in range(nc):
+            for k in range(6):
+                blk[8 + k, c] = g_rec[cand[c], k]
+        ox, oy, oz, dx, dy, dz = ro[0, 0], ro[0, 1], ro[0, 2], rd[0, 0], rd[0, 1], rd[0, 2]
+        tno, tfo = max(tn, rclip[0, 0]), min(tf, rclip[0, 1])
+        for c in range(nc):
+            (blk[0, c], blk[1, c], blk[2, c], blk[3, c], blk[4, c],
+             blk[5, c]) = chord_of(blk[8, c], blk[9, c], blk[10, c], blk[11, c], blk[12, c],
+                                   blk[13, c], ox, oy, oz, dx, dy, dz, k2, tno, tfo)
+        return
     for c in range(nc):
         g = cand[c]
-        ob = 0 if one else g_obj[g]
-        (blk[c, 0], blk[c, 1], blk[c, 2], blk[c, 3], blk[c, 4],
-         blk[c, 5]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
+        ob = g_obj[g]
+        (blk[0, c], blk[1, c], blk[2, c], blk[3, c], blk[4, c],
+         blk[5, c]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
                             g_rec, k2, max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]))
 
 
@@ -463,13 +476,13 @@ def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2,
         nq = qs[NQ]
         q0 = qs[QH]
         for c in range(nc):
-            if not blk[c, 1] > blk[c, 0]:
+            if not blk[1, c] > blk[0, c]:
                 continue
             if nh >= H.shape[0]:
                 return OVERFLOW
-            nq = add_hit(H, hid, ev_t, ev_k, ev_h, q0, nq, nh, cand[c], blk[c, 0], blk[c, 1],
-                         blk[c, 2], blk[c, 3], blk[c, 4], blk[c, 5],
-                         peak(cand[c], g_rec, blk[c, 4], k2))
+            nq = add_hit(H, hid, ev_t, ev_k, ev_h, q0, nq, nh, cand[c], blk[0, c], blk[1, c],
+                         blk[2, c], blk[3, c], blk[4, c], blk[5, c],
+                         peak(cand[c], g_rec, blk[4, c], k2))
             nh += 1
         qs[NH] = nh
         qs[NQ] = nq
