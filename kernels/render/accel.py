@@ -19,6 +19,7 @@ import numpy as np
 
 from ..jit import njit
 from .bricks import BRICK, leaf_bricks, sub_max
+from .gauss_pack import drawn, spheres
 
 LEAF = 8
 NODE_LEAVES = 16
@@ -40,23 +41,6 @@ TABLE_BYTES = 16  # per entry of a dense node table and its temporaries
 LEVEL_CELLS = 4
 LEVEL_SPAN = 3
 MAX_LEVEL = 12  # cells of 8 * 4^12 voxels: past any index range a VDB holds
-
-
-def gaussian_arrays(gs):
-    """(mu float64 (M,3) absolute index coords, sigma float64 (M,3), values float64 (M,),
-    amplitudes float64 (M,)) from a GaussianSet (origins int32 + float32 offsets: exact in f64)."""
-    start = np.asarray(gs.group_start, np.int64)
-    origins = np.asarray(gs.group_origins, np.int64).reshape(-1, 3)
-    counts = np.diff(start)
-    m = int(start[-1]) if start.size else 0
-    if m == 0:
-        return gaussian_arrays_empty()
-    mu = np.repeat(origins, counts, axis=0).astype(np.float64) + np.asarray(gs.offsets, np.float64)[:m]
-    sig = np.asarray(gs.sigmas, np.float64)[:m]
-    vals = np.asarray(gs.values, np.float64)[:m] if getattr(gs, "values", None) is not None \
-        else np.full(m, np.nan)
-    amps = np.asarray(gs.amplitudes, np.float64)[:m]
-    return mu, sig, vals, amps
 
 
 def _cells_to_nodes(cell_xyz):
@@ -134,28 +118,15 @@ class Accel:
         return self
 
 
-def _kept_arrays(gs, colors=False):
-    """gaussian_arrays without the Gaussians the renderer never draws (a zero or non-finite sigma,
-    centre or amplitude); with colors, also their second-grid values (NaN without; level sets: distances)."""
-    mu, sig, v, a = gaussian_arrays(gs) if gs is not None else gaussian_arrays_empty()
-    keep = np.all(sig > 0, axis=1) & np.all(np.isfinite(mu), axis=1) & np.isfinite(a) & (a != 0)
-    if not colors:
-        return mu[keep], sig[keep], v[keep], a[keep]
-    second = "distances" if getattr(gs, "grid_class", "") == "level_set" else "color_values"
-    cv = np.asarray(getattr(gs, second, None), np.float64)
-    return mu[keep], sig[keep], v[keep], a[keep], cv[:keep.shape[0]][keep] if cv.ndim else v[keep] * np.nan
+def drawn_gaussians(gs, support_k=3.0, max_level=MAX_LEVEL, sigmas=False):
+    """The Gaussians of set gs the renderer draws (gauss_pack.drawn with this module's levels)."""
+    return drawn(gs, support_k, max_level, LEVEL_CELLS, LEVEL_SPAN, LEAF, sigmas)
 
 
-def gaussian_bounds(gs, support_k=None):
-    """(lo, hi) of the drawn Gaussians' centres (index coords), or None when there are none;
-    with support_k, also (lo, hi) of their support_k-sigma supports."""
-    mu, sig = _kept_arrays(gs)[:2]
-    if not mu.shape[0]:
-        return None
-    if support_k is None:
-        return mu.min(0), mu.max(0)
-    reach = support_k * np.asarray(sig, np.float64)
-    return (mu.min(0), mu.max(0)), ((mu - reach).min(0), (mu + reach).max(0))
+def gaussian_bounds(gs, support_k):
+    """((lo, hi) of the drawn Gaussians' centres, (lo, hi) of their support_k-sigma supports), in
+    index coords, or None when none is drawn."""
+    return drawn(gs, support_k, 0, LEVEL_CELLS, LEVEL_SPAN, LEAF, arrays=False)["bounds"]
 
 
 def build_gaussians(objects, support_k):
@@ -165,41 +136,38 @@ def build_gaussians(objects, support_k):
     n = len(objects)
     acc = Accel(n)
     acc.finish()
-    mus, invs, vals, amps, gobj, clos, chis, levs, cvals = [], [], [], [], [], [], [], [], []
+    parts = []
     acc.g_first = np.zeros(n + 1, np.int64)
+    acc.g_bounds = []  # per object: gaussian_bounds (None: nothing drawn)
     for k, ob in enumerate(objects):
-        mu, sig, v, a, cv = _kept_arrays(ob.gaussians, colors=True)
-        m = mu.shape[0]
-        acc.g_first[k + 1] = acc.g_first[k] + m
-        r = support_k * sig
-        lev, clo, chi = _levels(np.floor_divide(np.floor(mu - r + 0.5).astype(np.int64), LEAF),
-                                np.floor_divide(np.floor(mu + r + 0.5).astype(np.int64), LEAF),
-                                0 if ob.is_level_set and ob.surface else MAX_LEVEL)
-        levs.append(lev)
-        clos.append(clo)
-        chis.append(chi)
-        mus.append(mu)
-        invs.append(1.0 / sig)
-        vals.append(v)
-        cvals.append(cv)
-        amps.append(a)
-        gobj.append(np.full(m, k, np.int32))
+        d = drawn_gaussians(ob.gaussians, support_k, 0 if ob.is_level_set and ob.surface else MAX_LEVEL)
+        d["obj"] = np.full(d["amp"].shape[0], k, np.int32)
+        acc.g_first[k + 1] = acc.g_first[k] + d["amp"].shape[0]
+        acc.g_bounds.append(d.pop("bounds"))
+        parts.append(d)
+
+    def joined(name, empty):
+        if len(parts) == 1:
+            return parts[0][name]  # no copy
+        return np.concatenate([d[name] for d in parts]) if parts else empty
+
     acc.cell_start = np.zeros(1, np.int64)
     acc.cell_items = np.zeros(0, np.int32)
     acc.face_start = np.zeros(1, np.int64)
     acc.face_items = np.zeros(0, np.int32)
     acc.has_lists = False
-    acc.g_mu = np.ascontiguousarray(np.concatenate(mus)) if mus else np.zeros((0, 3))
-    acc.g_inv = np.ascontiguousarray(np.concatenate(invs)) if invs else np.zeros((0, 3))
-    acc.g_val = np.concatenate(vals) if vals else np.zeros(0)
-    acc.g_cval = np.concatenate(cvals) if cvals else np.zeros(0)  # second grids' values (NaN: none)
-    acc.g_amp = np.concatenate(amps) if amps else np.zeros(0)
-    acc.g_obj = np.concatenate(gobj) if gobj else np.zeros(0, np.int32)
+    acc.g_mu = joined("mu", np.zeros((0, 3)))
+    acc.g_inv = joined("inv", np.zeros((0, 3)))
+    acc.g_val = joined("val", np.zeros(0))
+    acc.g_cval = joined("cval", np.zeros(0))  # second grids' values (NaN: none)
+    acc.g_amp = joined("amp", np.zeros(0))
+    acc.g_obj = joined("obj", np.zeros(0, np.int32))
     # each Gaussian's level and range of that level's cells (inclusive): the kernels test it once
     # per ray
-    acc.g_lev = np.concatenate(levs) if levs else np.zeros(0, np.int64)
-    acc.g_clo = np.concatenate(clos) if clos else np.zeros((0, 3), np.int64)
-    acc.g_chi = np.concatenate(chis) if chis else np.zeros((0, 3), np.int64)
+    acc.g_lev = joined("lev", np.zeros(0, np.int64))
+    acc.g_clo = joined("clo", np.zeros((0, 3), np.int64))
+    acc.g_chi = joined("chi", np.zeros((0, 3), np.int64))
+    parts.clear()
     # bounding spheres for the kernels' cheap rejection: float32 centres relative to a reference
     # point per object (exact enough near the data at any translation), radius^2 widened by a
     # margin that covers the float32 rounding (~1e-4 voxel at 1000 voxels from the reference)
@@ -209,27 +177,10 @@ def build_gaussians(objects, support_k):
         a0, a1 = acc.g_first[k], acc.g_first[k + 1]
         if a1 > a0:
             acc.obj_ref[k] = np.floor(acc.g_mu[a0:a1].mean(axis=0))
-            acc.g_sph[a0:a1, :3] = acc.g_mu[a0:a1] - acc.obj_ref[k]
-            rad = support_k / acc.g_inv[a0:a1].min(axis=1)
-            acc.g_sph[a0:a1, 3] = (rad * 1.001 + 0.01) ** 2
-    # paper's volume factor 1/det(Sigma) (index units)
-    acc.g_volfac = np.prod(acc.g_inv, axis=1) ** 2 if acc.g_inv.size else np.zeros(0)
+    # with each, paper mode's volume factor 1/det(Sigma) (index units)
+    acc.g_volfac = np.zeros(acc.g_mu.shape[0])
+    spheres(acc.g_mu, acc.g_inv, acc.obj_ref, acc.g_obj, float(support_k), acc.g_sph, acc.g_volfac)
     return acc
-
-
-def _levels(clo, chi, max_level):
-    """Each Gaussian's level (the first whose cells, LEVEL_CELLS^level leaves wide, its leaf box
-    [clo, chi] spans at most LEVEL_SPAN of per axis; at most max_level) and its box in those cells."""
-    lev = np.zeros(clo.shape[0], np.int64)
-    lo, hi = clo.copy(), chi.copy()
-    for level in range(1, max_level + 1):
-        big = (hi - lo).max(axis=1, initial=0) >= LEVEL_SPAN
-        if not big.any():
-            break
-        lev[big] = level
-        lo[big] = np.floor_divide(clo[big], LEVEL_CELLS ** level)
-        hi[big] = np.floor_divide(chi[big], LEVEL_CELLS ** level)
-    return lev, lo, hi
 
 
 def halo_entries(acc):
@@ -420,11 +371,6 @@ def _face_lists(cell, cx, cy, cz, gid, clo, chi, n_cells, g_off):
                     out[cur[k]] = g + g_off
                     cur[k] += 1
     return counts, out
-
-
-def gaussian_arrays_empty():
-    z = np.zeros((0, 3))
-    return z, z, np.zeros(0), np.zeros(0)
 
 
 

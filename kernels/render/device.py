@@ -123,8 +123,8 @@ class CPUDevice(Device):
             m = o.matrix_world
             self.w2i[k] = np.linalg.inv(m)
             self.voxel_world[k] = float(np.prod(np.linalg.norm(m[:3, :3], axis=0))) ** (1.0 / 3.0)
-            bounds = (gaussian_bounds(o.gaussians, scene.support_k) if o.gaussians is not None
-                      else None)
+            bounds = (None if o.gaussians is None else self.gacc.g_bounds[k] if self.gacc is not None
+                      else gaussian_bounds(o.gaussians, scene.support_k))
             if bounds is not None:
                 (lo, hi), self.index_box[k] = bounds  # centres; the supports' box
             else:

@@ -88,7 +88,8 @@ def test_supports_far_wider_than_a_leaf_render_without_refusal(spread_tiles):
     obj = RenderObject(gs, np.asarray(grid.index_to_world, np.float64))
     acc = accel.build_gaussians([obj], 3.0)
     # what per-leaf halo lists would hold (the old 25,000,000 limit refused it) ...
-    mu, sig = accel._kept_arrays(gs)[:2]
+    d = accel.drawn_gaussians(gs, sigmas=True)
+    mu, sig = d["mu"], d["sig"]
     lo = np.floor_divide(np.floor(mu - 3 * sig + 0.5).astype(np.int64), accel.LEAF)
     hi = np.floor_divide(np.floor(mu + 3 * sig + 0.5).astype(np.int64), accel.LEAF)
     per_leaf = int(np.prod(hi - lo + 1, axis=1).sum())
