@@ -13,7 +13,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..lod.levelset import surface_level
-from . import clip, lights
+from . import clip, gauss_pack, lights
 
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
@@ -186,9 +186,7 @@ def pack_gaussians(acc, w, col, rec, cw=None, grad=None) -> Gaussians:
 def test_records(acc):
     """(m, 8) rows for the per-ray Gaussian test: centre and 1/sigma filled, weight and entry
     bound per frame (pack_gaussians, the tile lists)."""
-    rec = np.zeros((acc.g_mu.shape[0], 8))
-    rec[:, 0:3], rec[:, 3:6] = acc.g_mu, acc.g_inv
-    return rec
+    return gauss_pack.test_records(acc.g_mu, acc.g_inv)
 
 
 NO_TILES = (np.zeros(1, np.int64), np.zeros(1, np.int32), np.zeros(1, np.int64))

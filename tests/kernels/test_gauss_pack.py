@@ -81,3 +81,13 @@ def test_a_set_with_nothing_drawn_has_no_bounds():
     gs = gaussian_set([[0.0, 0.0, 0.0]], 1.0, [1.0], [0.0])
     assert accel.gaussian_bounds(gs, 3.0) is None
     assert accel.drawn_gaussians(gs)["mu"].shape == (0, 3)
+
+
+def test_test_records_are_centres_and_inverse_sigmas(mixed_set):
+    from kernels.render import packing
+
+    acc = accel.build_gaussians([RenderObject(mixed_set)], 3.0)
+    rec = packing.test_records(acc)
+    want = np.zeros((acc.g_mu.shape[0], 8))
+    want[:, 0:3], want[:, 3:6] = acc.g_mu, acc.g_inv
+    assert np.array_equal(rec, want) and rec.flags.c_contiguous
