@@ -373,8 +373,6 @@ def _face_lists(cell, cx, cy, cz, gid, clo, chi, n_cells, g_off):
     return counts, out
 
 
-
-
 def _grid_leaves(grid):
     """(origins int64 (N,3), values float32 (N,8,8,8)) of a GridData, with active tiles expanded
     into constant leaves (tiles of 4096 voxels are skipped: too large to expand)."""

@@ -12,9 +12,23 @@ import math
 
 import numpy as np
 
-from ..jit import parallel_njit, prange
+from ..jit import njit, parallel_njit, prange
 
 _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+
+
+@njit(**_jit)
+def _gaussian(origins, gi, offsets, sigmas, amps, i):
+    """Gaussian i of group gi: whether it is drawn, its centre (origin + offset, exact in float64),
+    sigma and amplitude."""
+    m0 = float(origins[gi, 0]) + float(offsets[i, 0])
+    m1 = float(origins[gi, 1]) + float(offsets[i, 1])
+    m2 = float(origins[gi, 2]) + float(offsets[i, 2])
+    s0, s1, s2 = float(sigmas[i, 0]), float(sigmas[i, 1]), float(sigmas[i, 2])
+    w = float(amps[i])
+    ok = (s0 > 0.0 and s1 > 0.0 and s2 > 0.0 and math.isfinite(m0) and math.isfinite(m1)
+          and math.isfinite(m2) and math.isfinite(w) and w != 0.0)
+    return ok, (m0, m1, m2), (s0, s1, s2), w
 
 
 @parallel_njit(**_jit)
@@ -23,17 +37,9 @@ def _counts(start, origins, offsets, sigmas, amps):
     ng = start.shape[0] - 1
     cnt = np.zeros(ng, np.int64)
     for gi in prange(ng):
-        ox, oy, oz = float(origins[gi, 0]), float(origins[gi, 1]), float(origins[gi, 2])
         c = 0
         for i in range(start[gi], start[gi + 1]):
-            mx = ox + float(offsets[i, 0])
-            my = oy + float(offsets[i, 1])
-            mz = oz + float(offsets[i, 2])
-            a = float(amps[i])
-            if (float(sigmas[i, 0]) > 0.0 and float(sigmas[i, 1]) > 0.0 and float(sigmas[i, 2]) > 0.0
-                    and math.isfinite(mx) and math.isfinite(my) and math.isfinite(mz)
-                    and math.isfinite(a) and a != 0.0):
-                c += 1
+            c += _gaussian(origins, gi, offsets, sigmas, amps, i)[0]
         cnt[gi] = c
     return cnt
 
@@ -49,7 +55,6 @@ def _fill(start, first, origins, offsets, sigmas, amps, values, cvalues, k, max_
     write = mu.shape[0] > 0
     keep_sig = sig_out.shape[0] > 0
     for gi in prange(start.shape[0] - 1):
-        ox, oy, oz = float(origins[gi, 0]), float(origins[gi, 1]), float(origins[gi, 2])
         for a in range(3):
             gbox[gi, 0, a] = np.inf
             gbox[gi, 1, a] = -np.inf
@@ -57,16 +62,9 @@ def _fill(start, first, origins, offsets, sigmas, amps, values, cvalues, k, max_
             gbox[gi, 3, a] = -np.inf
         j = first[gi]
         for i in range(start[gi], start[gi + 1]):
-            m0 = ox + float(offsets[i, 0])
-            m1 = oy + float(offsets[i, 1])
-            m2 = oz + float(offsets[i, 2])
-            s0, s1, s2 = float(sigmas[i, 0]), float(sigmas[i, 1]), float(sigmas[i, 2])
-            w = float(amps[i])
-            if not (s0 > 0.0 and s1 > 0.0 and s2 > 0.0 and math.isfinite(m0) and math.isfinite(m1)
-                    and math.isfinite(m2) and math.isfinite(w) and w != 0.0):
+            ok, ms, ss, w = _gaussian(origins, gi, offsets, sigmas, amps, i)
+            if not ok:
                 continue
-            ms = (m0, m1, m2)
-            ss = (s0, s1, s2)
             for a in range(3):
                 r = k * ss[a]
                 gbox[gi, 0, a] = min(gbox[gi, 0, a], ms[a])
