@@ -158,29 +158,37 @@ def cell_residual(c, cmask, cref, acc, res, act):
 
 
 @njit(cache=True, inline="always")
-def pair_sums(c, g, corg, cent, sig, k2, power, q, e, act, res, wt):
-    """For Gaussian g listed in cell c: (sum psi res, sum psi wt) over the active voxels (act) of
-    the cell, psi = g^power (the Gaussian narrowed to sigma / sqrt(power), cut at k2 / power)."""
-    k2p = k2 / power
-    axis_terms(c, g, corg, cent, sig, power, k2p, q, e)
-    num = 0.0
-    den = 0.0
+def pair_voxels(q, e, k2, gather, u, wu, v, wv):
+    """A pair's Gaussian g over its cell's voxels inside its k-sigma ellipsoid (q, e: its axis
+    terms). gather False: u += wu g, v += wv g (512 each). gather True: u[z] += g a, v[z] += g b
+    summed over the (x, y) rows for a = wu, b = wv (512 each, 0 off the active voxels), u, v
+    scratch (8), then returns (sum g a, sum g b) across z: eight independent chains in SIMD lanes
+    (a running sum voxel by voxel was bound by the latency of its additions). Inlined with gather
+    a constant, so each use compiles to its own loop."""
+    if gather:
+        u[:8] = 0.0
+        v[:8] = 0.0
     for x in range(8):
-        if q[0, x] > k2p:
+        if q[0, x] > k2:
             continue
         for y in range(8):
             qxy = q[0, x] + q[1, y]
-            if qxy > k2p:
+            if qxy > k2:
                 continue
             exy = e[0, x] * e[1, y]
-            base = x * 64 + y * 8
+            b = x * 64 + y * 8
             for z in range(8):
-                i = base + z
-                if act[i] and qxy + q[2, z] <= k2p:
-                    ps = exy * e[2, z]
-                    num += ps * res[i]
-                    den += ps * wt[i]
-    return num, den
+                if gather:
+                    ps = exy * e[2, z] if qxy + q[2, z] <= k2 else 0.0
+                    u[z] += ps * wu[b + z]
+                    v[z] += ps * wv[b + z]
+                elif qxy + q[2, z] <= k2:
+                    u[b + z] += (wu[0] * exy) * e[2, z]
+                    v[b + z] += (wv[0] * exy) * e[2, z]
+    if not gather:
+        return 0.0, 0.0
+    return (((u[0] + u[1]) + (u[2] + u[3])) + ((u[4] + u[5]) + (u[6] + u[7])),
+            ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7])))
 
 
 CELLS_PER_TASK = 16  # cells per parallel task: one set of scratch arrays per task

@@ -19,59 +19,108 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import parallel_njit, prange
-from .error import cell_mixture, cell_residual, pair_sums
+from .error import (
+    CELLS_PER_TASK,
+    _table_terms,
+    axis_tables,
+    axis_terms,
+    cell_residual,
+    pair_voxels,
+)
+from .error_pairs import distinct_sigmas
 
 OMEGA = 1.6  # over-relaxation (< 2)
 
 
 @parallel_njit(cache=True)
-def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, pnum, pden, cres):
+def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, c2, sid, tq, te, hh, pnum, pden,
+          cres):
     """Residual at every active voxel of every cell into cres (0 elsewhere); per pair
     pnum = sum g r and, with with_den, pden = sum g s1; else pden = the pair's share of the SSE,
     sum |w g| r^2 / sum_k |w_k g_k| (each voxel's error split among the Gaussians that make its
-    field). Returns the per-cell SSE and max |r|."""
+    field). Returns the per-cell SSE and max |r|. Each pair's axis terms are made once (from
+    axis_tables' tables when hh >= 0) and kept for its three uses: they were most of the cost."""
     nc = corg.shape[0]
     k2 = k * k
     sse = np.zeros(nc)
     mx = np.zeros(nc)
     ones = np.ones(w.shape[0]) if with_den else np.abs(w)
-    for c in prange(nc):
-        acc = np.zeros(512)
-        one = np.zeros(512)
-        q = np.empty((3, 8))
-        e = np.empty((3, 8))
-        cell_mixture(c, corg, cstart, pg, cent, sig, w, k2, acc, q, e)
-        cell_mixture(c, corg, cstart, pg, cent, sig, ones, k2, one, q, e)  # s1, or sum |w g|
-        act = np.zeros(512, np.bool_)
-        res = cres[c]
-        for i in range(512):
-            res[i] = 0.0
-        sse[c], mx[c], _ = cell_residual(c, cmask, cref, acc, res, act)
-        if not with_den:
-            for i in range(512):
-                if act[i]:
+    most = 1
+    for c in range(nc):
+        most = max(most, cstart[c + 1] - cstart[c])
+    for t in prange((nc + CELLS_PER_TASK - 1) // CELLS_PER_TASK):
+        acc = np.empty(512)
+        one = np.empty(512)
+        act = np.empty(512, np.bool_)
+        wg = np.empty(1)
+        og = np.empty(1)
+        vn = np.empty(8)
+        vd = np.empty(8)
+        qs = np.empty((most, 3, 8))
+        es = np.empty((most, 3, 8))
+        for c in range(t * CELLS_PER_TASK, min(nc, (t + 1) * CELLS_PER_TASK)):
+            p0 = cstart[c]
+            acc[:] = 0.0
+            one[:] = 0.0
+            for p in range(p0, cstart[c + 1]):
+                g = pg[p]
+                q, e = qs[p - p0], es[p - p0]
+                if hh >= 0:
+                    _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
+                else:
+                    axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
+                wg[0], og[0] = w[g], ones[g]  # one: s1, or sum |w g|
+                pair_voxels(q, e, k2, False, acc, wg, one, og)
+            act[:] = False
+            res = cres[c]
+            res[:] = 0.0
+            sse[c], mx[c], _ = cell_residual(c, cmask, cref, acc, res, act)
+            for i in range(512):  # res is 0 off the active voxels: so is what it is paired with
+                if not act[i]:
+                    one[i] = 0.0
+                elif not with_den:
                     one[i] = res[i] * res[i] / one[i] if one[i] > 1e-30 else 0.0
-        for p in range(cstart[c], cstart[c + 1]):
-            g = pg[p]
-            num, den = pair_sums(c, g, corg, cent, sig, k2, 1.0, q, e, act, res, one)
-            pnum[p] = num
-            pden[p] = den if with_den else den * abs(w[g])
+            for p in range(p0, cstart[c + 1]):
+                num, den = pair_voxels(qs[p - p0], es[p - p0], k2, True, vn, res, vd, one)
+                pnum[p] = num
+                pden[p] = den if with_den else den * abs(w[pg[p]])
     return sse, mx
+
+
+COMPUTED = (np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int64), np.zeros((0, 0)), np.zeros((0, 0)),
+            -1)
+
+
+def axis_lattice(cent, sig, k):
+    """_pass' table arguments (c2, sid, tq, te, hh): centres on the half-voxel lattice with few
+    distinct sigmas (every set the presets make) read their axis terms from axis_tables (the same
+    bits); otherwise COMPUTED (hh = -1): they are computed."""
+    c2 = 2.0 * cent
+    u, few = distinct_sigmas(sig)
+    tables = axis_tables(u, k) if few and len(u) and np.array_equal(c2, np.round(c2)) else None
+    if tables is None:
+        return COMPUTED
+    order = np.argsort(u)
+    sid = order[np.searchsorted(u[order], sig)]
+    return c2.astype(np.int64), sid.astype(np.int64), *tables
 
 
 def _run(st, w, cref, with_den, pnum, pden, cres):
     return _pass(st["corg"], st["cmask"], cref, st["cstart"], st["pg"], st["cent"], st["sig"], w,
-                 st["k"], with_den, pnum, pden, cres)
+                 st["k"], with_den, *st["tables"], pnum, pden, cres)
 
 
 def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
     """Improve the weights w (float64; a new array is returned): cg_steps of conjugate gradients
     on the normal equations (Jacobi-preconditioned by diag(A^T A 1), unconstrained), the sign clip,
     then mm_steps projected MM steps, each monotone, and a last pass that only measures.
-    st: error.pair_lists output; sign: +1 / -1 / 0 per Gaussian (0: the weight stays 0).
+    st: error.pair_lists output (plus, optionally, axis_lattice's tables as "tables"); sign:
+    +1 / -1 / 0 per Gaussian (0: the weight stays 0).
     Returns (w, per-cell residuals (C, 512), per-cell SSE, per-cell max |r|, per-Gaussian share of
     the SSE)."""
     w = np.array(w, np.float64)
+    if "tables" not in st:
+        st = dict(st, tables=axis_lattice(st["cent"], st["sig"], st["k"]))
     m, npair = len(w), len(st["pg"])
     pnum, pden = np.empty(npair), np.empty(npair)
     cres = np.empty((len(st["corg"]), 512))

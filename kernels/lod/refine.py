@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import parallel_njit, prange
-from .error import DEFAULT_K, cell_mixture, cell_residual, pair_sums, setup
+from .error import DEFAULT_K, axis_terms, cell_mixture, cell_residual, pair_voxels, setup
 from .weights import amplitudes64, factors_from_codes, quantize_factors
 
 FMAX = 8.0  # largest amplitude factor (an isolated voxel needs ~3.4 at sigma = 0.6 voxel)
@@ -34,7 +34,6 @@ def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum,
     nc = corg.shape[0]
     k2 = k * k
     sse = np.zeros(nc)
-    ones = np.ones(512)
     for c in prange(nc):
         acc = np.zeros(512)
         q = np.empty((3, 8))
@@ -43,8 +42,13 @@ def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum,
         res = np.zeros(512)
         act = np.zeros(512, np.bool_)
         sse[c] = cell_residual(c, cmask, cref, acc, res, act)[0]
+        on = act.astype(np.float64)  # the active voxels' weight 1 (res is 0 elsewhere)
+        vn = np.empty(8)
+        vd = np.empty(8)
         for p in range(cstart[c], cstart[c + 1]):
-            pnum[p], pden[p] = pair_sums(c, pg[p], corg, cent, sig, k2, power, q, e, act, res, ones)
+            # psi = g^power: the Gaussian narrowed to sigma / sqrt(power), cut at k2 / power
+            axis_terms(c, pg[p], corg, cent, sig, power, k2 / power, q, e)
+            pnum[p], pden[p] = pair_voxels(q, e, k2 / power, True, vn, res, vd, on)
     return sse
 
 

@@ -182,3 +182,50 @@ def test_import_operator_builds_the_adaptive_lod(scene, bpy_module):
     assert adaptive["tolerance"] == pytest.approx(0.12)
     assert adaptive["tolerance_met"] == (adaptive["nrmse"] <= 0.12)
     assert adaptive["count"] < high["count"]
+
+
+def _dense_fit_sums(st, w):
+    """fit._pass' per-Gaussian sums from a dense matrix A (active voxels x Gaussians, each cut at
+    its k-sigma ellipsoid): (A^T r, A^T A 1, SSE) with r = reference - A w."""
+    rows, refs = [], []
+    for c in range(len(st["corg"])):
+        bits = np.unpackbits(st["cmask"][c].view(np.uint8), bitorder="little").astype(bool)
+        i = np.flatnonzero(bits)
+        rows.append(st["corg"][c] + np.stack([i // 64, (i // 8) % 8, i % 8], 1))
+        refs.append(st["cref"][c, i])
+    p, ref = np.concatenate(rows).astype(np.float64), np.concatenate(refs).astype(np.float64)
+    d = (p[:, None, :] - st["cent"][None]) / st["sig"][None]
+    q = (d * d).sum(2)
+    a = np.where(q <= st["k"] ** 2, np.exp(-0.5 * q), 0.0)
+    r = ref - a @ w
+    return a.T @ r, a.T @ a.sum(1), float(r @ r)
+
+
+@pytest.mark.parametrize("lattice", [True, False], ids=["lattice", "off-lattice"])
+def test_fit_pass_matches_dense_sums(lattice):
+    """The fit's pass (axis terms made once per pair, from tables on the half-voxel lattice) gives
+    the normal equations' sums of a dense matrix; the tables and computed terms agree bit for bit."""
+    from kernels.lod import fit
+    from kernels.lod.error import setup
+
+    g = random_sparse_grid(5, n_leaves=6, span=2, density=0.6)
+    gs = build_lod(g, "medium")
+    st = setup(g, gs)
+    if not lattice:
+        st["cent"] = st["cent"] + np.random.default_rng(1).uniform(-0.3, 0.3, st["cent"].shape)
+    w = np.random.default_rng(2).uniform(0.1, 1.0, len(st["cent"]))
+    tables = fit.axis_lattice(st["cent"], st["sig"], st["k"])
+    assert (tables[-1] >= 0) == lattice
+    npair = len(st["pg"])
+    out = []
+    for tab in (tables, fit.COMPUTED):
+        pnum, pden, cres = np.empty(npair), np.empty(npair), np.empty((len(st["corg"]), 512))
+        sse, _ = fit._run(dict(st, tables=tab), w, st["cref"], True, pnum, pden, cres)
+        out.append((np.bincount(st["pg"], pnum, len(w)), np.bincount(st["pg"], pden, len(w)), sse.sum()))
+    num, den, sse = _dense_fit_sums(st, w)
+    for got in out:
+        np.testing.assert_allclose(got[0], num, rtol=1e-9, atol=1e-9 * np.abs(num).max())
+        np.testing.assert_allclose(got[1], den, rtol=1e-9)
+        assert got[2] == pytest.approx(sse, rel=1e-9)
+    for x, y in zip(out[0], out[1]):
+        np.testing.assert_array_equal(x, y)
