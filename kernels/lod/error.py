@@ -158,13 +158,13 @@ def cell_residual(c, cmask, cref, acc, res, act):
 
 
 @njit(cache=True, inline="always")
-def pair_voxels(q, e, k2, gather, u, wu, v, wv):
+def pair_voxels(q, e, k2, gather, both, u, wu, v, wv):
     """A pair's Gaussian g over its cell's voxels inside its k-sigma ellipsoid (q, e: its axis
     terms). gather False: u += wu g, v += wv g (512 each). gather True: u[z] += g a, v[z] += g b
     summed over the (x, y) rows for a = wu, b = wv (512 each, 0 off the active voxels), u, v
     scratch (8), then returns (sum g a, sum g b) across z: eight independent chains in SIMD lanes
-    (a running sum voxel by voxel was bound by the latency of its additions). Inlined with gather
-    a constant, so each use compiles to its own loop."""
+    (a running sum voxel by voxel was bound by the latency of its additions). both False: u only
+    (the second sum 0). Inlined with gather and both constants: each use is its own loop."""
     if gather:
         u[:8] = 0.0
         v[:8] = 0.0
@@ -181,10 +181,12 @@ def pair_voxels(q, e, k2, gather, u, wu, v, wv):
                 if gather:
                     ps = exy * e[2, z] if qxy + q[2, z] <= k2 else 0.0
                     u[z] += ps * wu[b + z]
-                    v[z] += ps * wv[b + z]
+                    if both:
+                        v[z] += ps * wv[b + z]
                 elif qxy + q[2, z] <= k2:
                     u[b + z] += (wu[0] * exy) * e[2, z]
-                    v[b + z] += (wv[0] * exy) * e[2, z]
+                    if both:
+                        v[b + z] += (wv[0] * exy) * e[2, z]
     if not gather:
         return 0.0, 0.0
     return (((u[0] + u[1]) + (u[2] + u[3])) + ((u[4] + u[5]) + (u[6] + u[7])),

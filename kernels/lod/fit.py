@@ -30,21 +30,23 @@ from .error import (
 from .error_pairs import distinct_sigmas
 
 OMEGA = 1.6  # over-relaxation (< 2)
+NONE, S1, SHARE = 0, 1, 2  # what a pass sums per pair beside A^T r (_pass)
 
 
 @parallel_njit(cache=True)
-def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, c2, sid, tq, te, hh, pnum, pden,
+def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, den, c2, sid, tq, te, hh, pnum, pden,
           cres):
     """Residual at every active voxel of every cell into cres (0 elsewhere); per pair
-    pnum = sum g r and, with with_den, pden = sum g s1; else pden = the pair's share of the SSE,
+    pnum = sum g r and pden: with den = S1 sum g s1, with den = SHARE the pair's share of the SSE,
     sum |w g| r^2 / sum_k |w_k g_k| (each voxel's error split among the Gaussians that make its
-    field). Returns the per-cell SSE and max |r|. Each pair's axis terms are made once (from
-    axis_tables' tables when hh >= 0) and kept for its three uses: they were most of the cost."""
+    field), with den = NONE nothing (the second mixture is not made). Returns the per-cell SSE
+    and max |r|. Each pair's axis terms are made once (from axis_tables' tables when hh >= 0) and
+    kept for their three uses: they were most of the cost."""
     nc = corg.shape[0]
     k2 = k * k
     sse = np.zeros(nc)
     mx = np.zeros(nc)
-    ones = np.ones(w.shape[0]) if with_den else np.abs(w)
+    ones = np.ones(w.shape[0]) if den == S1 else np.abs(w)
     most = 1
     for c in range(nc):
         most = max(most, cstart[c + 1] - cstart[c])
@@ -70,7 +72,10 @@ def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, c2, sid, tq,
                 else:
                     axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
                 wg[0], og[0] = w[g], ones[g]  # one: s1, or sum |w g|
-                pair_voxels(q, e, k2, False, acc, wg, one, og)
+                if den == NONE:
+                    pair_voxels(q, e, k2, False, False, acc, wg, one, og)
+                else:
+                    pair_voxels(q, e, k2, False, True, acc, wg, one, og)
             act[:] = False
             res = cres[c]
             res[:] = 0.0
@@ -78,12 +83,15 @@ def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, with_den, c2, sid, tq,
             for i in range(512):  # res is 0 off the active voxels: so is what it is paired with
                 if not act[i]:
                     one[i] = 0.0
-                elif not with_den:
+                elif den == SHARE:
                     one[i] = res[i] * res[i] / one[i] if one[i] > 1e-30 else 0.0
             for p in range(p0, cstart[c + 1]):
-                num, den = pair_voxels(qs[p - p0], es[p - p0], k2, True, vn, res, vd, one)
+                if den == NONE:
+                    pnum[p] = pair_voxels(qs[p - p0], es[p - p0], k2, True, False, vn, res, vd, one)[0]
+                    continue
+                num, dsum = pair_voxels(qs[p - p0], es[p - p0], k2, True, True, vn, res, vd, one)
                 pnum[p] = num
-                pden[p] = den if with_den else den * abs(w[pg[p]])
+                pden[p] = dsum if den == S1 else dsum * abs(w[pg[p]])
     return sse, mx
 
 
@@ -105,9 +113,9 @@ def axis_lattice(cent, sig, k):
     return c2.astype(np.int64), sid.astype(np.int64), *tables
 
 
-def _run(st, w, cref, with_den, pnum, pden, cres):
+def _run(st, w, cref, den, pnum, pden, cres):
     return _pass(st["corg"], st["cmask"], cref, st["cstart"], st["pg"], st["cent"], st["sig"], w,
-                 st["k"], with_den, *st["tables"], pnum, pden, cres)
+                 st["k"], den, *st["tables"], pnum, pden, cres)
 
 
 def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
@@ -130,7 +138,7 @@ def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
         return np.bincount(st["pg"], weights=v * pw, minlength=m)
 
     free = sign != 0
-    _run(st, w, st["cref"], True, pnum, pden, cres)
+    _run(st, w, st["cref"], S1, pnum, pden, cres)
     d = at(pden)
     dinv = np.where(free & (d > 0), 1.0 / np.where(d > 0, d, 1.0), 0.0)
     g = at(pnum)  # A^T (b - A w)
@@ -141,7 +149,7 @@ def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
         for _ in range(cg_steps):
             if rz <= 0:
                 break
-            _run(st, p, zero, False, pnum, pden, cres)
+            _run(st, p, zero, NONE, pnum, pden, cres)
             q = -at(pnum)  # A^T A p
             pq = float(p @ q)
             if pq <= 0:
@@ -154,7 +162,7 @@ def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
             p = z + (rz / rz_old) * p
     for it in range(mm_steps + 1):
         w = np.where(sign > 0, np.maximum(w, 0.0), np.where(sign < 0, np.minimum(w, 0.0), 0.0))
-        sse, mx = _run(st, w, st["cref"], False, pnum, pden, cres)
+        sse, mx = _run(st, w, st["cref"], SHARE if it == mm_steps else NONE, pnum, pden, cres)
         if it == mm_steps:
             break
         w = w + omega * dinv * at(pnum)

@@ -48,7 +48,7 @@ def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum,
         for p in range(cstart[c], cstart[c + 1]):
             # psi = g^power: the Gaussian narrowed to sigma / sqrt(power), cut at k2 / power
             axis_terms(c, pg[p], corg, cent, sig, power, k2 / power, q, e)
-            pnum[p], pden[p] = pair_voxels(q, e, k2 / power, True, vn, res, vd, on)
+            pnum[p], pden[p] = pair_voxels(q, e, k2 / power, True, True, vn, res, vd, on)
     return sse
 
 

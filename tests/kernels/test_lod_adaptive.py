@@ -220,7 +220,7 @@ def test_fit_pass_matches_dense_sums(lattice):
     out = []
     for tab in (tables, fit.COMPUTED):
         pnum, pden, cres = np.empty(npair), np.empty(npair), np.empty((len(st["corg"]), 512))
-        sse, _ = fit._run(dict(st, tables=tab), w, st["cref"], True, pnum, pden, cres)
+        sse, _ = fit._run(dict(st, tables=tab), w, st["cref"], fit.S1, pnum, pden, cres)
         out.append((np.bincount(st["pg"], pnum, len(w)), np.bincount(st["pg"], pden, len(w)), sse.sum()))
     num, den, sse = _dense_fit_sums(st, w)
     for got in out:
