@@ -178,14 +178,31 @@ def _warm_up(grid, lods, weights, level_set_band, compute_error) -> float:
 def convert_lod(grid, name, weights="field", level_set_band=True, compute_error=True,
                 thresholds=None) -> ConvertedLOD:
     """One LOD of one grid, timed, with its field error (scalar figures) when asked."""
-    from . import lod
+    from .lod.build import finish
 
-    t0 = time.perf_counter()
-    try:
-        gset = lod.build_lod(grid, name, weights, level_set_band=level_set_band, **(thresholds or {}))
-    except MemoryError as err:
-        raise ConversionError(f"{grid.name}: out of memory building the {name} LOD") from err
-    seconds = time.perf_counter() - t0
+    return finish(convert_lod_steps(grid, name, weights, level_set_band, compute_error, thresholds))
+
+
+def convert_lod_steps(grid, name, weights="field", level_set_band=True, compute_error=True,
+                      thresholds=None):
+    """convert_lod as a generator: yields the adaptive preset's (round, figures) after each
+    round (kernels.lod.build.build_steps); its seconds leave out the time spent suspended."""
+    from .lod.build import build_steps
+
+    steps = build_steps(grid, name, weights, level_set_band=level_set_band, **(thresholds or {}))
+    seconds = 0.0
+    while True:
+        t0 = time.perf_counter()
+        try:
+            item = next(steps)
+        except StopIteration as stop:
+            gset = stop.value
+            break
+        except MemoryError as err:
+            raise ConversionError(f"{grid.name}: out of memory building the {name} LOD") from err
+        finally:
+            seconds += time.perf_counter() - t0
+        yield item
     error, seconds_error = {}, 0.0
     if compute_error:
         t0 = time.perf_counter()
@@ -325,7 +342,9 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             k += 1
             th = dict(tolerance=tolerance) if name == "adaptive" else {}
             th.update(thresholds or {})
-            cg.lods.append(convert_lod(g, name, weights, level_set_band, compute_error, th))
+            cg.lods.append((yield from _rounds(
+                convert_lod_steps(g, name, weights, level_set_band, compute_error, th),
+                0.05 + 0.95 * (k - 1) / steps, 0.95 / steps, f"{g.name}: {lod_label(name)} LOD")))
             if cgrid is not None and g.grid_class != "level_set":  # level sets: coloured by position
                 add_color_values(cg.lods[-1], g, cgrid)
         if cgrid is not None and g.grid_class != "level_set":
@@ -335,6 +354,18 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             cg.color_values = dict(voxel_stats(cgrid), background=float(cgrid.background or 0.0))
         out.append(cg)
     return out
+
+
+def _rounds(steps, base, span, text):
+    """A LOD's build steps as convert_steps' (fraction, text): one per adaptive round, within
+    [base, base + span)."""
+    while True:
+        try:
+            r, fig = next(steps)
+        except StopIteration as stop:
+            return stop.value
+        yield base + span * (1.0 - 0.5 ** r), \
+            f"{text}, round {r}: {fig['gaussians']:,} Gaussians, NRMSE {fig['nrmse']:.4f}"
 
 
 def run(steps, progress=None, cancel=None):

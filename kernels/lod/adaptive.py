@@ -155,10 +155,12 @@ def _gaussians(box, tbox, nt, is_ls, scale):
     return out, W.level_set_distances(out) if is_ls else None
 
 
-def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, max_error,
-                   scale, band, params, k=DEFAULT_K):
+def adaptive_rounds(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, max_error,
+                    scale, band, params, k=DEFAULT_K):
     """kept/order: the scan's kept masks in canonical leaf order; leaf_origins (file order); t_or,
-    tbox: the active tiles (build._tile_boxes). Returns the GaussianSet, params filled in."""
+    tbox: the active tiles (build._tile_boxes). A generator: yields (round, its figures:
+    gaussians, nrmse, max_abs) after each round's fit, so a caller can report progress or stop;
+    returns the GaussianSet, params filled in."""
     is_ls = grid.grid_class == "level_set"
     values = grid.leaf_values
     occupied = np.flatnonzero(kept.any(axis=1))
@@ -195,6 +197,7 @@ def build_adaptive(grid, kept, order, leaf_origins, t_or, tbox, *, tolerance, ma
         total, worst = float(np.sum(sse * table["cw"])), float(mx.max(initial=0.0))
         hist.append(dict(gaussians=m + nt, nrmse=float(np.sqrt(total / npts)) / den if npts else 0.0,
                          max_abs=worst))
+        yield rounds, hist[-1]
         if (total <= budget and (max_error <= 0 or worst <= max_error)) or rounds >= MAX_ROUNDS:
             break
         node_sse, node_max = node_errors(nodes[0], nodes[1], nodes[2], leaf_cell, cres)

@@ -9,7 +9,7 @@ import numpy as np
 from .. import lod_names
 from . import clustering, error, levelset, schemes
 from . import weights as W
-from .adaptive import build_adaptive
+from .adaptive import adaptive_rounds
 from .gaussian_set import GaussianSet
 from .gridprep import active_tiles, finite_grid, range_of
 from .refine import refine_amplitudes
@@ -81,6 +81,23 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
     """refine: amplitude-refinement iterations (field weights, non-level-set grids; see refine.py).
     0 (default) keeps a_i = V_i / ((2 pi)^1.5 sx sy sz); 2 roughly halves the NRMSE at High LOD on
     real data at the cost of ~2 exact field evaluations per iteration. Paper weights: must be 0."""
+    return finish(build_steps(grid, preset, weights, level_set_band=level_set_band, merge=merge,
+                              refine=refine, **thresholds))
+
+
+def finish(steps):
+    """Run a generator of build steps to its end: what it returns."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+
+
+def build_steps(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band=True, merge=None,
+                refine=0, **thresholds):
+    """build_lod as a generator: the adaptive preset yields (round, figures) after each of its
+    rounds (adaptive.adaptive_rounds); the others yield nothing. Returns the GaussianSet."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
     if weights not in WEIGHTS:
@@ -130,10 +147,9 @@ def build_lod(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_band
                   band_threshold=band_thr, value_min=vmin, value_max=vmax, merged=0,
                   nonfinite_voxels=nonfinite, refine=0)
     if preset == "adaptive":
-
-        return build_adaptive(grid, kept, order, lo_, t_or, tbox, tolerance=p["tolerance"],
-                              max_error=p["max_error"], scale=scale, band=params["level_set_band"],
-                              params=params)
+        return (yield from adaptive_rounds(grid, kept, order, lo_, t_or, tbox, tolerance=p["tolerance"],
+                                           max_error=p["max_error"], scale=scale,
+                                           band=params["level_set_band"], params=params))
 
     if preset == "merged" or merge:  # the merge pass works on boxes; Gaussians after it
         box = dict(c2=np.empty((m_leaf, 3), np.int16), ext=np.empty((m_leaf, 3), np.int16),

@@ -6,7 +6,7 @@ import os
 import numba
 import numpy as np
 import pytest
-from conftest import shared_data_files
+from conftest import SAMPLE, shared_data_files
 
 from kernels.lod import build_lod, decode_compact, encode_compact, field_error
 from kernels.lod.encoding import VALUE_TOL
@@ -229,3 +229,24 @@ def test_fit_pass_matches_dense_sums(lattice):
         assert got[2] == pytest.approx(sse, rel=1e-9)
     for x, y in zip(out[0], out[1]):
         np.testing.assert_array_equal(x, y)
+
+
+def test_rounds_are_reported_and_a_cancel_stops_between_them():
+    """A conversion's progress names each adaptive round (the import's progress bar and Esc work
+    within the LOD, not only between LODs); a cancel after the first round stops the build there."""
+    from kernels import pipeline
+
+    seen = []
+    cg = pipeline.convert_file(SAMPLE, ["density"], ["adaptive"], compute_error=False,
+                               progress=lambda f, t: seen.append((f, t)))[0]
+    rounds = [t for _, t in seen if ", round " in t]
+    assert len(rounds) == cg.lods[0].gset.params["rounds"] >= 2
+    assert rounds[0].startswith("density: Adaptive LOD, round 1: ") and "NRMSE" in rounds[0]
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions) and fractions[-1] < 1.0
+    texts = []
+    with pytest.raises(pipeline.ConversionCancelled):
+        pipeline.convert_file(SAMPLE, ["density"], ["adaptive"], compute_error=False,
+                              progress=lambda f, t: texts.append(t),
+                              cancel=lambda: any(", round " in t for t in texts))
+    assert sum(", round " in t for t in texts) == 1
