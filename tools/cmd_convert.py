@@ -11,7 +11,7 @@ command up to printing (seconds_other: what no phase covers); seconds_convert is
 encoding (the conversion after reading) and mvoxels_per_second the active voxels over read +
 seconds_convert. With
 `--lod adaptive` the object also says whether the tolerance was met (and a warning on stderr says
-what was met when it was not). --out
+what was met when it was not); on a terminal, stderr gets a line per round as it ends. --out
 writes the compact encoding (kernels.lod.encode_compact) as an .npz that kernels.lod.decode_compact
 reads back. A refusal is one line on stderr (tools/cli_errors.py).
 
@@ -53,6 +53,12 @@ PHASES = ("seconds_start", "seconds_topology", "seconds_read", "seconds_prepare"
           "seconds_build", "seconds_error", "seconds_encode", "seconds_write")
 
 
+def _progress(fraction, text):
+    """On a terminal, the steps a long conversion reports (the adaptive preset's rounds)."""
+    if ", round " in text:
+        print(f"gaussvdb convert: {text}", file=sys.stderr, flush=True)
+
+
 def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=True, error=True,
             out=None, vector_magnitude=False, color_grid=None, **thresholds) -> dict:
     import cli_grids
@@ -73,7 +79,8 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
         try:
             cg = pipeline.convert_file(path, [name], [lod], weights, level_set_band, vector_magnitude,
                                        compute_error=error, thresholds=thresholds,
-                                       value_figures=False, color_grid=color_grid)[0]
+                                       value_figures=False, color_grid=color_grid,
+                                       progress=_progress if sys.stderr.isatty() else None)[0]
         except pipeline.ConversionError as err:
             raise cli_errors.InputError(str(err)) from err
     t_pipeline = time.perf_counter() - t0

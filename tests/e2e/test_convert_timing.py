@@ -33,3 +33,44 @@ def test_phases_sum_to_a_total_that_matches_the_wall_time(extra, tmp_path):
     assert res["seconds_convert"] == pytest.approx(conv)
     assert res["mvoxels_per_second"] == pytest.approx(
         res["active_voxels"] / (res["seconds_read"] + conv) / 1e6)
+
+
+def test_adaptive_rounds_on_a_terminal_only(tmp_path):
+    """On a terminal, `convert --lod adaptive` reports each round on stderr as it ends (a long
+    conversion is not silent); piped, stderr stays free of them (scripts parse it)."""
+    import pty
+    import subprocess
+    import sys
+    import threading
+
+    args = [sys.executable, os.path.join(ROOT, "tools", "cli.py"), "convert", SAMPLE, "--lod",
+            "adaptive", "--tolerance", "0.05", "--json", "--no-error"]
+    leader, follower = pty.openpty()
+    chunks = []
+
+    def drain():  # read as it comes: a full terminal buffer would block the command
+        while True:
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # the other end is closed: all read
+                return
+            if not chunk:
+                return
+            chunks.append(chunk)
+
+    reader = threading.Thread(target=drain)
+    reader.start()
+    try:
+        p = subprocess.run(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=follower, timeout=900)
+    finally:
+        os.close(follower)
+        reader.join(timeout=60)
+        os.close(leader)
+    err = b"".join(chunks)
+    assert p.returncode == 0, err
+    res = json.loads(p.stdout)
+    lines = [s for s in err.decode().splitlines() if ", round " in s]
+    assert len(lines) == res["rounds"] >= 2
+    assert lines[-1].startswith(f"gaussvdb convert: density: Adaptive LOD, round {res['rounds']}: ")
+    piped = run_cli(ROOT, *args[2:])
+    assert piped.returncode == 0 and ", round " not in piped.stderr
