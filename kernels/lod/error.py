@@ -160,7 +160,8 @@ def cell_residual(c, cmask, cref, acc, res, act):
 @njit(cache=True, inline="always")
 def pair_voxels(q, e, k2, gather, both, u, wu, v, wv):
     """A pair's Gaussian g over its cell's voxels inside its k-sigma ellipsoid (q, e: its axis
-    terms). gather False: u += wu g, v += wv g (512 each). gather True: u[z] += g a, v[z] += g b
+    terms). gather False: u += wu[0] g, v += wv[0] g (u, v 512 each; the weights come in
+    one-element arrays, so both uses pass arrays in the same places). gather True: u[z] += g a, v[z] += g b
     summed over the (x, y) rows for a = wu, b = wv (512 each, 0 off the active voxels), u, v
     scratch (8), then returns (sum g a, sum g b) across z: eight independent chains in SIMD lanes
     (a running sum voxel by voxel was bound by the latency of its additions). both False: u only
