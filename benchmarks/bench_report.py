@@ -197,7 +197,9 @@ def setup_view(g, a):
 
 
 def render(dev, objs, mode, cam, tf, threads, step=None, repeat=1):
-    """(image, seconds, seconds of the scene sync): one sync, then the median of `repeat` renders."""
+    """(image, seconds, seconds of the scene sync, work): one sync, then the median of `repeat`
+    renders; work: the frame's segments (device stats: Gaussian chords, field terms or voxel
+    samples), the pixels it covers (alpha > 0) and the threads it ran on."""
     from kernels.render import RenderScene
 
     kw = {} if step is None else {"step": step}
@@ -209,7 +211,10 @@ def render(dev, objs, mode, cam, tf, threads, step=None, repeat=1):
         t0 = time.perf_counter()
         out = dev.render(sc, cam, tf)
         times.append(time.perf_counter() - t0)
-    return out["Combined"], float(np.median(times)), sync
+    img = out["Combined"]
+    work = dict(segments=float(dev.stats["segments"]), covered_pixels=int(np.count_nonzero(img[..., 3] > 0)),
+                threads=int(dev.stats["threads"]))
+    return img, float(np.median(times)), sync, work
 
 
 def warm_render(dev, threads, modes):
@@ -249,7 +254,7 @@ class Grid:
         self.view = setup_view(self.g, a)
         self.voxel_objs = [RenderObject(None, self.view["m"], grid=self.g, is_level_set=self.is_ls)]
         # the error reference: voxels, trilinear, 1/8-voxel step
-        self.ref, t_ref, _ = self.render(self.voxel_objs, "reference", step=REF_STEP)
+        self.ref, t_ref, _, _ = self.render(self.voxel_objs, "reference", step=REF_STEP)
         prog.step(f"{self.ds}/{name} reference (step {REF_STEP})")
         self.sheet = {"grid": name, "ref": to_display(self.ref), "cells": [], "cycles": [], "voxels": []}
         v = self.view
@@ -281,17 +286,18 @@ class Grid:
         self.prog.step(f"{self.ds}/{self.name} {lod}: convert")
         objs = [RenderObject(gs, self.view["m"], grid=self.g, is_level_set=self.is_ls)]
         for mode in gmodes:
-            img, t_r, t_s = self.render(objs, mode)
-            err = self.add(img, **conv, mode=mode, renderer="gaussvdb", seconds_render=t_r, seconds_sync=t_s)
+            img, t_r, t_s, work = self.render(objs, mode)
+            err = self.add(img, **conv, **work, mode=mode, renderer="gaussvdb", seconds_render=t_r,
+                           seconds_sync=t_s)
             self.sheet["cells"].append((lod, mode, to_display(img), err["psnr"]))
             self.prog.step(f"{self.ds}/{self.name} {lod} {mode}: {t_r:.2f} s, PSNR {_f(err['psnr'])}")
 
     def reference_curve(self):
         """Our voxel renderer at each of REF_STEPS: no LOD involved."""
         for step in REF_STEPS:
-            img, t_r, t_s = self.render(self.voxel_objs, "reference", step=step, repeat=self.a.repeat)
+            img, t_r, t_s, work = self.render(self.voxel_objs, "reference", step=step, repeat=self.a.repeat)
             err = self.add(img, **dict(VOXEL_ROW, step=step, field_rmse=0.0, field_nrmse=0.0, field_max_abs=0.0),
-                           mode="reference", renderer="gaussvdb", seconds_render=t_r, seconds_sync=t_s)
+                           **work, mode="reference", renderer="gaussvdb", seconds_render=t_r, seconds_sync=t_s)
             self.sheet["voxels"].append((f"reference step {step:g}", to_display(img), err["psnr"]))
         self.prog.step(f"{self.ds}/{self.name} reference at steps {', '.join(f'{s:g}' for s in REF_STEPS)}")
 

@@ -127,8 +127,10 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         out["seconds"] = time.perf_counter() - t  # the first frame: sync, set-up, drawing
         out["seconds_sync"] = dev.stats["seconds_sync"]
         t = time.perf_counter()
-        dev.render(sc, view["cam"], view["tf"])
+        img = dev.render(sc, view["cam"], view["tf"])["Combined"]
         out["seconds_frame"] = time.perf_counter() - t  # a frame after it (camera moves: this)
+        # its work per covered pixel: Gaussian segments (particles), or voxel samples (reference)
+        out["segments_per_pixel"] = dev.stats["segments"] / max(int(np.count_nonzero(img[..., 3] > 0)), 1)
         out["gaussians"] = int(gs.count) if gs is not None else 0
     elif kind == "import":  # the add-on's import in Blender, as the dialog runs it
         sys.path.insert(0, os.path.join(ROOT, "tools"))
@@ -286,16 +288,18 @@ def markdown(rows, exps, src, a, load):
            "its own; peak = that process's resident high-water mark (Cycles: its render process). "
            "render: s = the first frame (sync, set-up, drawing), frame = the next one; cycles: s = "
            "a frame at 16 samples after a warm-up frame that synced the scene (sync).\n",
-           "| size | M voxels | step | s | frame s | sync s | peak MB | Gaussians |",
-           "|---|---:|---|---:|---:|---:|---:|---:|"]
+           "segments / px: a render's work per covered pixel (particles: Gaussian segments, a "
+           "Gaussian's exact integral over one stretch of a ray; reference: voxel samples).\n",
+           "| size | M voxels | step | s | frame s | sync s | peak MB | Gaussians | segments / px |",
+           "|---|---:|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         if "failed" in r:
-            out.append(f"| x{r['factor']} | | {_label(r)} | failed: {r['failed']} | | | | |")
+            out.append(f"| x{r['factor']} | | {_label(r)} | failed: {r['failed']} | | | | | |")
             continue
         f = (lambda k, fmt="{:.2f}": fmt.format(r[k]) if r.get(k) is not None else "")  # noqa: E731
         out.append(f"| x{r['factor']} | {r['active_voxels'] / 1e6:.1f} | {_label(r)} | {f('seconds')} | "
                    f"{f('seconds_frame')} | {f('seconds_sync')} | {f('peak_mb', '{:,.0f}')} | "
-                   f"{f('gaussians', '{:,}')} |")
+                   f"{f('gaussians', '{:,}')} | {f('segments_per_pixel', '{:,.0f}')} |")
     out += ["", "Scaling exponent (slope of log seconds over log active voxels):", "",
             "| step | exponent |", "|---|---:|"]
     out += [f"| {n} | {e:.2f} |" for n, e in exps]

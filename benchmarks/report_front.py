@@ -45,3 +45,30 @@ def front_rows(rows):
 def same_step(rows, renderer, step):
     return next((r for r in rows if r["renderer"] == renderer and r.get("step") == step
                  and (renderer != "gaussvdb" or r["mode"] == "reference")), None)
+
+
+def work(r):
+    """(segments per covered pixel, ns per segment per thread) of one of our rows, else None: what a
+    frame costs and why (a Gaussian segment or term, or a voxel sample)."""
+    if r.get("segments") is None or not r.get("covered_pixels"):
+        return None
+    per_px = r["segments"] / r["covered_pixels"]
+    ns = r["seconds_render"] * r["threads"] / r["segments"] * 1e9 if r["segments"] else None
+    return per_px, ns
+
+
+def why_not(rows):
+    """Where no Gaussian configuration is on the front: the fastest Gaussian one against our fastest
+    voxel step, segments per covered pixel and their cost (None where one of them is missing)."""
+    g = min((r for r in rows if is_gaussian(r) and work(r)), key=lambda r: r["seconds_render"], default=None)
+    v = min((r for r in rows if r["renderer"] == "gaussvdb" and r["mode"] == "reference" and work(r)),
+            key=lambda r: r["seconds_render"], default=None)
+    if g is None or v is None:
+        return None
+    (gp, gns), (vp, vns) = work(g), work(v)
+    return (f"{label(g)} {g['seconds_render']:.2f} s: {gp:,.0f} {SEGMENT[g['mode']]} a covered pixel, "
+            f"{gns:.0f} ns each; {label(v)} {v['seconds_render']:.2f} s: {vp:,.0f} samples, {vns:.0f} ns each")
+
+
+# what a frame's segments are, per mode (the device's statistics)
+SEGMENT = {"particles": "Gaussian segments", "field": "Gaussian terms", "paper": "samples", "reference": "samples"}

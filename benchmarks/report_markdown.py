@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from metrics import time_to_reach
-from report_front import front_rows, is_gaussian, label, same_step
+from report_front import front_rows, is_gaussian, label, same_step, why_not, work
 
 
 def _f(x, fmt="{:.1f}"):
@@ -31,6 +31,11 @@ def front_summary(rows):
          "A configuration is on the front when no other one is both as fast and as accurate (one of them "
          "strictly). Gaussian configurations are mode/LOD; `reference step s` is our voxel renderer at a "
          "step of s voxels, `VTK step s` VTK's fixed-point ray caster at a sample distance of s voxels.\n",
+         "Where none is Gaussian, the last column says why, in work per covered pixel (the device's "
+         "statistics; ns per segment per thread): the fastest Gaussian configuration's segments (particles: "
+         "a Gaussian's exact, erf, integral over one stretch of the ray; field: a Gaussian term at a sample) "
+         "against our fastest voxel step's trilinear samples. A segment costs about what a sample does, so "
+         "a Gaussian mode is faster only where it has fewer of them.\n",
          "| dataset | grid | on the front (fastest first: s, dB) | Gaussian on the front |",
          "|---|---|---|---|"]
     for ds, g in _keys(rows):
@@ -39,9 +44,14 @@ def front_summary(rows):
         gauss = [label(r) for r in front if is_gaussian(r)]
         L.append(f"| {ds} | {g} | " + "; ".join(
             f"{label(r)} ({r['seconds_render']:.2f}, {_f(r['psnr'])})" for r in front)
-                 + f" | {', '.join(gauss) or 'none'} |")
+                 + f" | {', '.join(gauss) or 'none' + _why(sub)} |")
     L.append("")
     return L
+
+
+def _why(rows):
+    w = why_not(rows)
+    return f" ({w})" if w else ""
 
 
 def voxel_renderers(rows):
@@ -124,12 +134,14 @@ def write_report(meta, rows, skipped, out, files):
     for ds, g in _keys(rows):
         sub = [r for r in rows if r["dataset"] == ds and r["grid"] == g]
         L.append(f"### {ds} / {g} ({sub[0]['class']})\n")
-        L.append("| renderer | mode | LOD | samples / step | s render | PSNR dB | SSIM | max abs |")
-        L.append("|---|---|---|---:|---:|---:|---:|---:|")
+        L.append("| renderer | mode | LOD | samples / step | s render | PSNR dB | SSIM | max abs "
+                 "| segments / covered px | ns / segment |")
+        L.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
         for r in sorted(sub, key=lambda r: (r["renderer"] != "gaussvdb", r["seconds_render"])):
+            w = work(r)
             L.append(f"| {r['renderer']} | {r['mode']} | {r['lod']} | {_samples_or_step(r)} "
                      f"| {r['seconds_render']:.3f} | {_f(r['psnr'], '{:.2f}')} | {r['ssim']:.4f} "
-                     f"| {r['max_abs_error']:.4f} |")
+                     f"| {r['max_abs_error']:.4f} | {_f(w and w[0], '{:,.0f}')} | {_f(w and w[1], '{:.0f}')} |")
         cyc = sorted((r for r in sub if r["renderer"] == "cycles"), key=lambda r: r["samples"])
         pm = next((r for r in sub if r["mode"] == "particles" and r["lod"] == "medium"), None)
         if cyc:

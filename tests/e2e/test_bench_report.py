@@ -19,7 +19,7 @@ import pytest
 from conftest import ROOT, SAMPLE, run_cli
 
 sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
-from report_front import front_rows, pareto_front  # noqa: E402  (after the sys.path line above)
+from report_front import front_rows, pareto_front, why_not, work  # noqa: E402  (after the sys.path line above)
 
 HAS_VTK = importlib.util.find_spec("vtk") is not None
 
@@ -77,6 +77,10 @@ def test_keys_and_meta(quick_run):
     assert vtk == ([0.25, 0.5, 1.0] if HAS_VTK else [])
     cyc = [r for r in rows if r["renderer"] == "cycles"]
     assert sorted(r["samples"] for r in cyc) == [4, 16]
+    # our rows say what a frame did: segments, the pixels it covers, its threads
+    for r in rows:
+        if r["renderer"] == "gaussvdb":
+            assert r["segments"] > 0 and 0 < r["covered_pixels"] <= 128 * 128 and r["threads"] >= 1, r
     # the vector grid and the empty/constant grids are listed, not silently dropped
     skipped = {s["grid"] for s in res["skipped"]}
     assert {"velocity", "flame"} <= skipped
@@ -127,6 +131,23 @@ def test_pareto_front_hand_made():
     assert [r["n"] for r in front_rows(rows)] == [0, 2, 4]
 
 
+def test_why_no_gaussian_on_the_front():
+    """The front summary's reason: the fastest Gaussian configuration's work per covered pixel
+    against the fastest voxel step's (ns per segment per thread from the frame's time)."""
+    def row(mode, lod, t, segs, px, step=None, renderer="gaussvdb"):
+        return dict(renderer=renderer, mode=mode, lod=lod, step=step, samples=None, seconds_render=t,
+                    psnr=40.0, segments=segs, covered_pixels=px, threads=2)
+
+    rows = [row("particles", "high", 2.0, 4e6, 1000), row("particles", "low", 0.5, 1e6, 1000),
+            row("field", "low", 0.9, 9e6, 1000), row("reference", "voxels", 0.1, 2e5, 1000, step=2.0),
+            row("reference", "voxels", 0.2, 4e5, 1000, step=1.0), row("vtk", "voxels", 0.05, None, 0, 1.0, "vtk")]
+    assert work(rows[1]) == (1000.0, 1000.0)  # 1e6 segments over 1000 pixels; 0.5 s x 2 threads / 1e6
+    assert work(rows[-1]) is None  # a peer's row: no device statistics
+    assert why_not(rows) == ("particles/low 0.50 s: 1,000 Gaussian segments a covered pixel, 1000 ns each; "
+                             "reference step 2 0.10 s: 200 samples, 1000 ns each")
+    assert why_not(rows[:3]) is None  # no voxel row to compare with
+
+
 def _blob_view(size=48):
     """A smooth blob grid, its view and a CLI-shaped args namespace for the bench helpers."""
     import bench_report
@@ -155,8 +176,8 @@ def test_vtk_matches_reference(tmp_path):
     from kernels.render import CPUDevice, RenderObject
 
     g, view, a = _blob_view()
-    ref, _, _ = bench_report.render(CPUDevice(), [RenderObject(None, view["m"], grid=g)], "reference",
-                                    view["cam"], view["tf"], 2, step=bench_report.REF_STEP)
+    ref, *_ = bench_report.render(CPUDevice(), [RenderObject(None, view["m"], grid=g)], "reference",
+                                  view["cam"], view["tf"], 2, step=bench_report.REF_STEP)
     info, imgs = run_vtk(g, view, a, str(tmp_path), (1.0, 0.5), repeat=1)
     assert sorted(imgs) == [0.5, 1.0] and info["threads"] == 2
     assert ref[..., :3].max() > 0.05  # the blob is visible
