@@ -55,7 +55,7 @@ for _p in (ROOT, HERE, os.path.join(ROOT, "tools")):
 import cli_errors  # noqa: E402  (after the sys.path set-up above)
 from bench_lod import warm_up  # noqa: E402
 from bench_render import world_box  # noqa: E402
-from metrics import image_errors, to_display  # noqa: E402
+from metrics import covered_pixels, image_errors, to_display  # noqa: E402
 from report_external import VTKMissing, run_cycles, run_vtk  # noqa: E402
 from report_figures import contact_sheet, figure_error_vs_time  # noqa: E402
 from report_markdown import slug, write_report  # noqa: E402
@@ -198,8 +198,8 @@ def setup_view(g, a):
 
 def render(dev, objs, mode, cam, tf, threads, step=None, repeat=1):
     """(image, seconds, seconds of the scene sync, work): one sync, then the median of `repeat`
-    renders; work: the frame's segments (device stats: Gaussian chords, field terms or voxel
-    samples), the pixels it covers (alpha > 0) and the threads it ran on."""
+    renders; work: the frame's segments (device stats: Gaussian segments, field terms or voxel
+    samples), the pixels it covers and the threads it ran on."""
     from kernels.render import RenderScene
 
     kw = {} if step is None else {"step": step}
@@ -212,7 +212,7 @@ def render(dev, objs, mode, cam, tf, threads, step=None, repeat=1):
         out = dev.render(sc, cam, tf)
         times.append(time.perf_counter() - t0)
     img = out["Combined"]
-    work = dict(segments=float(dev.stats["segments"]), covered_pixels=int(np.count_nonzero(img[..., 3] > 0)),
+    work = dict(segments=float(dev.stats["segments"]), covered_pixels=covered_pixels(img),
                 threads=int(dev.stats["threads"]))
     return img, float(np.median(times)), sync, work
 

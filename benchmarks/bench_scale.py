@@ -113,6 +113,8 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         out["seconds"] = time.perf_counter() - t
         out["gaussians"] = int(cl.gset.count)
     elif kind == "render":
+        from metrics import covered_pixels
+
         from kernels.render import CPUDevice, RenderObject, RenderScene
 
         gs = pipeline.convert_lod(grid, lod, compute_error=False).gset if mode != "reference" else None
@@ -130,7 +132,7 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         img = dev.render(sc, view["cam"], view["tf"])["Combined"]
         out["seconds_frame"] = time.perf_counter() - t  # a frame after it (camera moves: this)
         # its work per covered pixel: Gaussian segments (particles), or voxel samples (reference)
-        out["segments_per_pixel"] = dev.stats["segments"] / max(int(np.count_nonzero(img[..., 3] > 0)), 1)
+        out["segments_per_pixel"] = dev.stats["segments"] / max(covered_pixels(img), 1)
         out["gaussians"] = int(gs.count) if gs is not None else 0
     elif kind == "import":  # the add-on's import in Blender, as the dialog runs it
         sys.path.insert(0, os.path.join(ROOT, "tools"))

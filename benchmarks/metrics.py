@@ -32,6 +32,11 @@ def image_errors(ref, img) -> dict:
             "brightness": float(b.sum()) / sa if sa > 0 else None}
 
 
+def covered_pixels(img) -> int:
+    """Pixels a render drew something on (alpha > 0): what its work is counted against."""
+    return int(np.count_nonzero(img[..., 3] > 0))
+
+
 def to_display(img, max_side=256) -> np.ndarray:
     """uint8 sRGB (H, W, 3), top row first, composited over black, downsampled to <= max_side."""
     from kernels.render.colormaps import linear_to_srgb

@@ -47,6 +47,10 @@ def same_step(rows, renderer, step):
                  and (renderer != "gaussvdb" or r["mode"] == "reference")), None)
 
 
+# what a frame's segments are, per mode (the device's statistics)
+SEGMENT = {"particles": "Gaussian segments", "field": "Gaussian terms", "paper": "samples", "reference": "samples"}
+
+
 def work(r):
     """(segments per covered pixel, ns per segment per thread) of one of our rows, else None: what a
     frame costs and why (a Gaussian segment or term, or a voxel sample)."""
@@ -68,7 +72,3 @@ def why_not(rows):
     (gp, gns), (vp, vns) = work(g), work(v)
     return (f"{label(g)} {g['seconds_render']:.2f} s: {gp:,.0f} {SEGMENT[g['mode']]} a covered pixel, "
             f"{gns:.0f} ns each; {label(v)} {v['seconds_render']:.2f} s: {vp:,.0f} samples, {vns:.0f} ns each")
-
-
-# what a frame's segments are, per mode (the device's statistics)
-SEGMENT = {"particles": "Gaussian segments", "field": "Gaussian terms", "paper": "samples", "reference": "samples"}
