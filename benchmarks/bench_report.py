@@ -10,6 +10,7 @@ and every render mode:
   seconds, field RMSE/NRMSE/max (level sets: of the occupancy, plus the surface IoU);
 - rendering with the kernels directly (no Blender): seconds, and PSNR/SSIM/max abs error against our
   `reference` render of the voxels at a fine step (1/8 voxel);
+- splat mode at one sample a lattice cell (SPLAT_STEP: its lattice already follows the Gaussians' scale);
 - our `reference` mode itself at steps 2, 1, 0.5 and 0.25 voxel (a curve of time vs error);
 - VTK's CPU volume renderer (vtkFixedPointVolumeRayCastMapper, the `vtk` module, off-screen, in a
   subprocess: benchmarks/vtk_ref.py) with our camera and transfer function at sample distances 1, 0.5
@@ -64,6 +65,7 @@ VIEW = (0.35, 1.0, -0.3)
 COLORMAP = "viridis"
 REF_STEP = 0.125  # the error reference
 REF_STEPS = (2.0, 1.0, 0.5, 0.25)  # our voxel renderer's curve
+SPLAT_STEP = 1.0  # splat mode: one sample a lattice cell (the lattice follows the Gaussians' scale)
 VTK_STEPS = (1.0, 0.5, 0.25)
 SAMPLE_NAME = "mantaflow_smoke_r128_f040.vdb"
 SCALAR_TYPES = ("float", "double", "half")
@@ -286,9 +288,10 @@ class Grid:
         self.prog.step(f"{self.ds}/{self.name} {lod}: convert")
         objs = [RenderObject(gs, self.view["m"], grid=self.g, is_level_set=self.is_ls)]
         for mode in gmodes:
-            img, t_r, t_s, work = self.render(objs, mode)
-            err = self.add(img, **conv, **work, mode=mode, renderer="gaussvdb", seconds_render=t_r,
-                           seconds_sync=t_s)
+            step = SPLAT_STEP if mode == "splat" else None
+            img, t_r, t_s, work = self.render(objs, mode, step=step)
+            err = self.add(img, **dict(conv, step=step), **work, mode=mode, renderer="gaussvdb",
+                           seconds_render=t_r, seconds_sync=t_s)
             self.sheet["cells"].append((lod, mode, to_display(img), err["psnr"]))
             self.prog.step(f"{self.ds}/{self.name} {lod} {mode}: {t_r:.2f} s, PSNR {_f(err['psnr'])}")
 

@@ -6,7 +6,7 @@ import math
 
 from report_front import front_rows
 
-MODE_COLORS = {"particles": "tab:blue", "field": "tab:green", "paper": "tab:red"}
+MODE_COLORS = {"particles": "tab:blue", "field": "tab:green", "splat": "tab:olive", "paper": "tab:red"}
 LOD_MARKERS = {"low": "v", "medium": "s", "high": "^", "variance": "D", "merged": "P", "adaptive": "*"}
 CURVES = (("reference", "tab:gray", "reference (labels: step)"),  # (which rows, colour, legend)
           ("vtk", "tab:purple", "VTK fixed point (labels: step)"),

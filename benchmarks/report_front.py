@@ -48,7 +48,8 @@ def same_step(rows, renderer, step):
 
 
 # what a frame's segments are, per mode (the device's statistics)
-SEGMENT = {"particles": "Gaussian segments", "field": "Gaussian terms", "paper": "samples", "reference": "samples"}
+SEGMENT = {"particles": "Gaussian segments", "field": "Gaussian terms", "splat": "lattice samples", "paper": "samples",
+           "reference": "samples"}
 
 
 def work(r):

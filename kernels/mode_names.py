@@ -10,6 +10,7 @@ class Mode(IntEnum):
     FIELD = 1      # the summed Gaussian field, sampled (render/_cpu_gauss)
     PAPER = 2      # the seed paper's closest hits (render/_cpu_pieces)
     REFERENCE = 3  # trilinear voxel samples of the source grid (render/_cpu_pieces)
+    SPLAT = 4      # the Gaussian field on a lattice at its own scale, drawn as REFERENCE (render/splat_scene)
 
     @classmethod
     def of(cls, name: str) -> "Mode":
@@ -18,14 +19,17 @@ class Mode(IntEnum):
 
 NAMES = tuple(m.name.lower() for m in Mode)  # RenderScene.mode and --mode, in Mode's order
 DEFAULT = "particles"
-LABELS = {"particles": "Particles", "field": "Field", "reference": "Reference", "paper": "Paper"}
+LABELS = {"particles": "Particles", "field": "Field", "splat": "Splat", "reference": "Reference",
+          "paper": "Paper"}
 DESCRIPTIONS = {
     "particles": "Each Gaussian classified by its value; closed-form optical depth",
     "field": "Transfer function on the summed Gaussian field (post-classification DVR)",
+    "splat": "The summed Gaussian field evaluated once on a lattice at the Gaussians' scale, then "
+             "rendered as voxels: the fastest Gaussian mode, with the lattice's interpolation error",
     "reference": "Direct volume render of the source voxels: the ground truth",
     "paper": "The seed paper's closest-hit renderer, for comparison only",
 }
-MENU_ORDER = ("particles", "field", "reference", "paper")  # the Gaussian modes, then the others
+MENU_ORDER = ("particles", "field", "splat", "reference", "paper")  # the Gaussian modes, then the others
 
 
 def enum_items() -> tuple:

@@ -348,7 +348,9 @@ class SceneSync:
             if not inst.show_self:
                 continue
             lod = schema.active_lod(orig, render=not self.viewport)
-            e = self._entry(ob, lod, mode == "reference", depsgraph)
+            # splat mode draws level sets from their voxels (kernels/render/splat_scene)
+            need_grid = mode == "reference" or (mode == "splat" and gs.grid_class == "level_set")
+            e = self._entry(ob, lod, need_grid, depsgraph)
             seen.add(orig.name)
             mw = np.array(inst.matrix_world, np.float64)
             if e.frame is not None:

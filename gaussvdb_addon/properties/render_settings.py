@@ -53,7 +53,8 @@ class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
                                      description="Stop a ray when its transmittance (the fraction "
                                                  "of light left) falls below this (0: never)")
     step_scale: FloatProperty(name="Step", default=0.5, min=0.01, max=4.0, update=_tag,
-                              description="Sample step of the field and reference modes, in voxels")
+                              description="Sample step of the field and reference modes, in voxels "
+                                          "(splat mode: in cells of its lattice)")
     tau_max: FloatProperty(name="Max Optical Depth", default=0.1, min=1e-4, max=10.0, update=_tag,
                            description="Particles mode: subdivide overlapping segments until this optical depth")
     level_set_color: EnumProperty(

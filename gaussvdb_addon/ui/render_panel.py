@@ -33,7 +33,7 @@ class GAUSSVDB_PT_render(_Base, bpy.types.Panel):
         col.prop(s, "early_termination")
         if s.mode == "PARTICLES":
             col.prop(s, "tau_max")
-        elif s.mode in ("FIELD", "REFERENCE"):
+        elif s.mode in ("FIELD", "SPLAT", "REFERENCE"):
             col.prop(s, "step_scale")
 
 

@@ -3,9 +3,10 @@ uploads/builds acceleration data once per scene change; ``begin_frame(scene, cam
 the per-frame set-up (weights, colours, empty-space skips, screen-tile lists) once per frame;
 ``render(...)`` draws the whole frame or a region of it (a band of rows, a render border) and
 reuses the frame's set-up while camera, transfer function and settings are unchanged;
-``end_frame()`` frees it. ``CPUDevice``: numba, parallel over rows, nogil, cached kernels. The GPU
-device (gaussvdb_addon/gpu/device.py: compute shaders on Blender's gpu module) implements the same
-methods over a CPUDevice's frame set-up and registers itself in ``_REGISTRY`` and ``_USABLE``.
+``end_frame()`` frees it; splat mode is drawn as the reference scene splat_scene makes. CPUDevice:
+numba, parallel over rows, nogil, cached kernels. The GPU device (gaussvdb_addon/gpu/device.py:
+compute shaders on Blender's gpu module) implements the same methods over a CPUDevice's frame
+set-up and registers itself in ``_REGISTRY`` and ``_USABLE``.
 
 Passes: 'Combined' float32 (H, W, 4), linear, premultiplied alpha, row 0 = bottom;
 'Depth' float32 (H, W): world distance along the ray where the accumulated opacity reaches 0.5
@@ -25,6 +26,7 @@ from . import packing
 from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds, tile_budget
 from .camera import Camera
 from .scene import Mode, RenderScene, same_geometry
+from .splat_scene import SplatGrids
 from .transfer import TransferFunction, range_alpha, resampled
 
 MAX_TILE_ENTRIES = 24_000_000  # screen-tile list entries per frame (id + pixel mask: 288 MB)
@@ -35,8 +37,7 @@ class Device(ABC):
 
     @abstractmethod
     def sync(self, scene: RenderScene) -> None:
-        """Build/upload acceleration data for the scene's geometry (objects, placement,
-        support radius). Cheap to skip when ``scene.geometry_key()`` is unchanged."""
+        """Build/upload the scene's geometry (objects, placement, support radius): once per key."""
 
     @abstractmethod
     def begin_frame(self, scene: RenderScene, camera, tf: TransferFunction):
@@ -47,13 +48,12 @@ class Device(ABC):
         """Drop the frame's set-up (memory); the next render() redoes it."""
 
     def load_kernels(self) -> float:
-        """Load (or compile) the kernels now, once per process, so that the first frame's
-        timings are its own. Returns the seconds it took."""
+        """Load (or compile) the kernels once per process (seconds): first frames time only themselves."""
         return 0.0
 
     def band_rows(self, scene: RenderScene) -> tuple:
-        """(fewest, multiple): the rows a render() call should cover to keep the device busy,
-        and the row multiple bands should start on."""
+        """(fewest, multiple): rows a render() call should cover to keep the device busy, and the
+        row multiple bands start on."""
         return 1, 1
 
     @abstractmethod
@@ -69,9 +69,8 @@ class Device(ABC):
 
 
 class CPUDevice(Device):
-    """numba CPU device. ``threads``: numba threads (default all). ``cache_dir``: where numba
-    caches compiled kernels (kernels.cachedir's rule when not given); it applies if given before
-    the kernels are first imported in this process."""
+    """numba CPU device. ``threads``: numba threads (default all). ``cache_dir``: numba's cache
+    (default: kernels.cachedir's rule), if given before the kernels' first import here."""
     name = "CPU"
 
     def __init__(self, threads=None, cache_dir=None, tile_rows=None, screen_tiles=True):
@@ -92,11 +91,13 @@ class CPUDevice(Device):
         self._frame = None  # the current frame's state (begin_frame)
         self.vacc = None
         self._objects, self._support_k = (), 3.0  # the synced scene's (sync)
+        self._splats = SplatGrids()  # splat mode's lattices (splat_scene)
         self.stats = {}
 
     # -- sync -----------------------------------------------------------------------------
     def sync(self, scene: RenderScene) -> None:
         t0 = time.perf_counter()
+        scene = self._splats.drawn(scene)
         key = scene.geometry_key()
         if same_geometry(key, self._key):
             self.stats["seconds_sync"] = 0.0
@@ -149,8 +150,8 @@ class CPUDevice(Device):
         return self.gacc
 
     def _lit_gradients(self):
-        """Gaussians.grad for lit volumes in particles mode (_cpu_lit.lit_gradients), once per
-        sync: the field weights (value x amplitude) do not change with the transfer function."""
+        """Lit particles' Gaussians.grad (_cpu_lit.lit_gradients), once per sync: field weights
+        (value x amplitude) do not change with the transfer function."""
         if self._grad is None:
             from ._cpu_lit import lit_gradients
 
@@ -295,8 +296,7 @@ class CPUDevice(Device):
 
     def _frame_key(self, mode, scene, camera, prep):
         """What a frame's state depends on besides the geometry (sync count): mode, tile switch,
-        camera, settings, shading (lit, shadows: the shadow grids) and the transfer-function
-        tables."""
+        camera, settings, shading (lit, shadows: the shadow grids), transfer-function tables."""
         _, objects, transfer = prep
         tables = (objects.tf, transfer.lut, transfer.par, objects.kind, objects.ls, objects.step,
                   objects.clip, objects.lit, transfer.lights, transfer.settings, objects.ctf,
@@ -306,6 +306,7 @@ class CPUDevice(Device):
             np.ascontiguousarray(a).tobytes() for a in tables)
 
     def begin_frame(self, scene, camera, tf):
+        scene = self._splats.drawn(scene)
         if self.gacc is None or not same_geometry(scene.geometry_key(), self._key):
             self.sync(scene)
         mode = Mode.of(scene.mode)
@@ -488,8 +489,7 @@ _USABLE = {}  # name -> callable: whether this machine can run that device (the 
 
 
 def available_devices():
-    """Names of the devices this build can use here (a GPU device adds itself to _REGISTRY and
-    its check to _USABLE)."""
+    """Names of the devices usable here (a GPU device adds itself to _REGISTRY, its check to _USABLE)."""
     return [n for n in _REGISTRY if n not in _USABLE or _USABLE[n]()]
 
 

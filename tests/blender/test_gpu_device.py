@@ -1,5 +1,5 @@
 """The GPU device (compute shaders on Blender's gpu module, llvmpipe here) against the CPU device:
-the reference mode on a fog volume, a level-set surface and two overlapping objects (PSNR >= 50 dB,
+the reference mode on a fog volume (and splat mode, drawn as reference), a level-set surface and two overlapping objects (PSNR >= 50 dB,
 Depth and Value passes), clip planes, early termination, a background and lit volumes with
 shadows; F12 with write_still;
 the viewport's draw code into an offscreen; and, with EGL made unavailable, the CPU rendering and
@@ -14,6 +14,7 @@ from references import GPU_MIN_DB, psnr
 from test_engine_helpers import add_camera, read_image, setup_render
 from vdb_fixtures import write_grid
 
+from kernels.lod import build_lod
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
 from kernels.render.clip import plane_from_point_normal
 from kernels.render.lights import Light
@@ -50,6 +51,9 @@ def scenes():
                                        mode="reference"),
         "surface_in_fog_background": RenderScene([RenderObject(grid=ls, **surf), RenderObject(grid=box)],
                                                  mode="reference", background=(0.1, 0.2, 0.3, 1.0)),
+        # splat mode is the reference mode over lattices of the Gaussian field (level sets: voxels)
+        "splat": RenderScene([RenderObject(build_lod(fog, "medium"), grid=fog),
+                              RenderObject(build_lod(ls, "high"), m, grid=ls, **surf)], mode="splat", lights=sun),
         "clip_early_termination": RenderScene(
             [RenderObject(grid=fog, clip=np.atleast_2d(plane_from_point_normal((20, 0, 0), (1, 0, 0))))],
             mode="reference", transmittance_min=0.3),
