@@ -5,8 +5,8 @@ import pytest
 
 from kernels.lod import build_lod
 from kernels.lod.splat import auto_spacing, lattice_to_index, splat_grid
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
 from kernels.lod.synthetic import grid_from_dense
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
 
 K = 3.0
 
