@@ -10,7 +10,7 @@ and every render mode:
   seconds, field RMSE/NRMSE/max (level sets: of the occupancy, plus the surface IoU);
 - rendering with the kernels directly (no Blender): seconds, and PSNR/SSIM/max abs error against our
   `reference` render of the voxels at a fine step (1/8 voxel);
-- splat mode at one sample a lattice cell (SPLAT_STEP: its lattice already follows the Gaussians' scale);
+- splat mode at one sample a lattice cell (kernels.lod.splat.STEP: its lattice follows the Gaussians' scale);
 - our `reference` mode itself at steps 2, 1, 0.5 and 0.25 voxel (a curve of time vs error);
 - VTK's CPU volume renderer (vtkFixedPointVolumeRayCastMapper, the `vtk` module, off-screen, in a
   subprocess: benchmarks/vtk_ref.py) with our camera and transfer function at sample distances 1, 0.5
@@ -65,7 +65,6 @@ VIEW = (0.35, 1.0, -0.3)
 COLORMAP = "viridis"
 REF_STEP = 0.125  # the error reference
 REF_STEPS = (2.0, 1.0, 0.5, 0.25)  # our voxel renderer's curve
-SPLAT_STEP = 1.0  # splat mode: one sample a lattice cell (the lattice follows the Gaussians' scale)
 VTK_STEPS = (1.0, 0.5, 0.25)
 SAMPLE_NAME = "mantaflow_smoke_r128_f040.vdb"
 SCALAR_TYPES = ("float", "double", "half")
@@ -275,6 +274,7 @@ class Grid:
 
     def gaussian_modes(self, lod, gmodes):
         from kernels.lod import encode_compact, encoded_nbytes, paper_model_bytes
+        from kernels.lod.splat import STEP as SPLAT_STEP
         from kernels.pipeline import convert_lod
         from kernels.render import RenderObject
 
@@ -288,7 +288,7 @@ class Grid:
         self.prog.step(f"{self.ds}/{self.name} {lod}: convert")
         objs = [RenderObject(gs, self.view["m"], grid=self.g, is_level_set=self.is_ls)]
         for mode in gmodes:
-            step = SPLAT_STEP if mode == "splat" else None
+            step = SPLAT_STEP if mode == "splat" else None  # one sample a lattice cell
             img, t_r, t_s, work = self.render(objs, mode, step=step)
             err = self.add(img, **dict(conv, step=step), **work, mode=mode, renderer="gaussvdb",
                            seconds_render=t_r, seconds_sync=t_s)

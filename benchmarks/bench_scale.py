@@ -115,6 +115,7 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
     elif kind == "render":
         from metrics import covered_pixels
 
+        from kernels.lod.splat import STEP as SPLAT_STEP
         from kernels.render import CPUDevice, RenderObject, RenderScene
 
         gs = pipeline.convert_lod(grid, lod, compute_error=False).gset if mode != "reference" else None
@@ -123,7 +124,7 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         view = _view(grid, size)
         dev = CPUDevice()
         dev.load_kernels()
-        sc = RenderScene([obj], mode=mode)
+        sc = RenderScene([obj], mode=mode, **({"step": SPLAT_STEP} if mode == "splat" else {}))
         t = time.perf_counter()
         dev.render(sc, view["cam"], view["tf"])
         out["seconds"] = time.perf_counter() - t  # the first frame: sync, set-up, drawing

@@ -23,6 +23,7 @@ from ..vdb.griddata import GridData
 from .error import DEFAULT_K, cell_mixture, pair_lists
 
 SPACINGS = (1, 2, 4, 8)
+STEP = 1.0  # a ray step of one lattice cell resolves the field: the lattice follows the Gaussians' scale
 OFF = 1 << 20  # the cell key's offset (error_pairs._key)
 MAX_CELLS = 1 << 22  # 8^3 cells of the lattice (16 GB of float64 sums would be far past it)
 

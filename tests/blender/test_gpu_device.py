@@ -1,7 +1,7 @@
 """The GPU device (compute shaders on Blender's gpu module, llvmpipe here) against the CPU device:
 the reference mode on a fog volume, a level-set surface and two overlapping objects (PSNR >= 50 dB,
-Depth and Value passes), splat mode (drawn as the reference mode), clip planes, early termination, a background and lit volumes with
-shadows; F12 with write_still;
+Depth and Value passes), splat mode (drawn as the reference mode), clip planes, early termination,
+a background and lit volumes with shadows; F12 with write_still;
 the viewport's draw code into an offscreen; and, with EGL made unavailable, the CPU rendering and
 the GPU choice falling back with a warning instead of aborting the process."""
 import json
