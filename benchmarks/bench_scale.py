@@ -122,8 +122,10 @@ def step(kind, path, lod=None, mode=None, size=256, error=True):
         obj = RenderObject(gs, np.asarray(grid.index_to_world, np.float64),
                            grid=grid if mode == "reference" else None)
         view = _view(grid, size)
+        from bench_report import warm_render
+
         dev = CPUDevice()
-        dev.load_kernels()
+        warm_render(dev, None, [mode])  # this mode's kernels loaded apart (splat: its lattice's too)
         sc = RenderScene([obj], mode=mode, **({"step": SPLAT_STEP} if mode == "splat" else {}))
         t = time.perf_counter()
         dev.render(sc, view["cam"], view["tf"])

@@ -30,8 +30,11 @@ DESCRIPTIONS = {
     "paper": "The seed paper's closest-hit renderer, for comparison only",
 }
 MENU_ORDER = ("particles", "field", "splat", "reference", "paper")  # the Gaussian modes, then the others
+# the enum's value a .blend file stores per mode (the menu position each had when it came): a new
+# mode takes the next number, none is ever renumbered, so saved scenes keep their mode
+SAVED_VALUES = {"particles": 0, "field": 1, "reference": 2, "paper": 3, "splat": 4}
 
 
 def enum_items() -> tuple:
-    """(IDENTIFIER, label, description) of every mode, for a Blender EnumProperty."""
-    return tuple((n.upper(), LABELS[n], DESCRIPTIONS[n]) for n in MENU_ORDER)
+    """(IDENTIFIER, label, description, saved value) of every mode, for a Blender EnumProperty."""
+    return tuple((n.upper(), LABELS[n], DESCRIPTIONS[n], SAVED_VALUES[n]) for n in MENU_ORDER)

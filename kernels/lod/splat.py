@@ -29,12 +29,20 @@ MAX_CELLS = 1 << 22  # 8^3 cells of the lattice (16 GB of float64 sums would be 
 
 
 def auto_spacing(gset):
-    """The lattice spacing that follows the LOD: the largest power of two (at most 8) not above
-    the median of the Gaussians' smallest sigma over 1.2 (a sigma of 4.8 voxels, Low's dense
-    leaf: 4; High's 2^3 blocks, sigma 1.2: 1)."""
-    if len(gset.sigmas) == 0:
+    """The lattice spacing that follows the LOD: the largest power of two (at most 8) with at
+    least 1.2 lattice cells a sigma for the Gaussians that stand for 90% of the voxels (their
+    smallest sigma, the 10% quantile over the voxels they stand for: Low 4 where its leaves are
+    dense, 2 where many are partial; Medium and High 1). Weighted by voxels, not counted: a LOD's
+    many small Gaussians on sparse edges would otherwise set the lattice for its few large ones
+    that fill the volume."""
+    sig = np.asarray(gset.sigmas, np.float64).reshape(-1, 3).min(axis=1)
+    if len(sig) == 0:
         return 1
-    s = float(np.median(np.asarray(gset.sigmas, np.float64).min(axis=1))) / 1.2
+    vox = getattr(gset, "voxels", None)
+    w = np.ones(len(sig)) if vox is None else np.maximum(np.asarray(vox, np.float64), 1.0)
+    o = np.argsort(sig, kind="stable")
+    cum = np.cumsum(w[o])
+    s = float(sig[o][np.searchsorted(cum, 0.1 * cum[-1])]) / 1.2
     return int(max(sp for sp in SPACINGS if sp <= max(s, 1.0)))
 
 
@@ -67,11 +75,16 @@ def _fill_keys(lo, hi, start, keys):
                     n += 1
 
 
-def _cells(cent, sig, k):
-    """The 8^3 cells (origins, int64 (n, 3), and keys, sorted by key) that the supports reach
-    (the voxel centres within k sigma, as the pair lists count them)."""
+def _cells(cent, sig, k, gstart):
+    """The 8^3 cells (origins, int64 (n, 3), and keys, sorted by key) of the boxes that hold each
+    group's supports (the voxel centres within k sigma, as the pair lists count them): a group's
+    box, not each Gaussian's, so the list before de-duplication stays near the groups' count;
+    cells no support reaches come out empty and are dropped."""
     lo = np.ceil(cent - k * sig).astype(np.int64) >> 3
     hi = np.floor(cent + k * sig).astype(np.int64) >> 3
+    first = np.asarray(gstart, np.int64)[:-1][np.diff(gstart) > 0]
+    if len(first):
+        lo, hi = np.minimum.reduceat(lo, first, axis=0), np.maximum.reduceat(hi, first, axis=0)
     cnt = np.prod(np.maximum(hi - lo + 1, 0).astype(np.float64), axis=1)
     if cnt.sum() > 16 * MAX_CELLS:
         raise ValueError(f"the splat grid's supports reach {cnt.sum():,.0f} cells "
@@ -120,7 +133,7 @@ def splat_grid(gset, spacing=None, k=DEFAULT_K, name=None, values=None, backgrou
         ls = getattr(gset, "grid_class", None) == "level_set"
         values = np.ones(len(sig)) if ls else gset.values
     w = np.nan_to_num(np.asarray(values, np.float64)) * np.asarray(gset.amplitudes, np.float64)
-    corg, keys = _cells(cent, sig, float(k))
+    corg, keys = _cells(cent, sig, float(k), gset.group_start)
     st = pair_lists(dict(keys=keys, corg=corg), cent, sig, k)
     n = len(corg)
     vals = np.empty((n, 512), np.float32)

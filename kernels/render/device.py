@@ -306,9 +306,9 @@ class CPUDevice(Device):
             np.ascontiguousarray(a).tobytes() for a in tables)
 
     def begin_frame(self, scene, camera, tf):
+        if scene.mode == "splat" or self.gacc is None or not same_geometry(scene.geometry_key(), self._key):
+            self.sync(scene)  # splat: the key is its lattices' (made there, timed as the sync)
         scene = self._splats.drawn(scene)
-        if self.gacc is None or not same_geometry(scene.geometry_key(), self._key):
-            self.sync(scene)
         mode = Mode.of(scene.mode)
         prep = self._prepare(scene, tf)
         if mode == Mode.PARTICLES and (prep[1].kind == 2).any():

@@ -53,7 +53,8 @@ def test_enum_items_are_the_fact_modules(addon, bpy_module):
     pick = bpy.ops.gaussvdb.colormap_pick.get_rna_type().properties["colormap"]
     assert _items(pick) == colormap_names.enum_items()
     mode_names = _mod("kernels.mode_names")
-    assert _items(scene_props["mode"]) == mode_names.enum_items()
+    assert tuple(i + (v.value,) for i, v in zip(_items(scene_props["mode"]), scene_props["mode"].enum_items)) \
+        == mode_names.enum_items()
     assert scene_props["mode"].default == mode_names.DEFAULT.upper()
     assert {i[0].lower() for i in mode_names.enum_items()} == set(mode_names.NAMES)
     assert _mod("kernels.render.scene").Mode is mode_names.Mode  # one home for the ids
@@ -122,3 +123,14 @@ def test_older_files_move_their_json_figures_into_the_collection(scene, bpy_modu
     assert "lods" not in json.loads(obj.gaussvdb.stats_json)
     assert imp.object_stats(obj) == want
     assert obj.gaussvdb.stats()["values"] == old["values"]
+
+
+def test_saved_render_mode_values_never_move(addon, bpy_module):
+    """A .blend stores the render mode's enum value: the modes kept the numbers they had when the
+    menu gained Splat in its middle (REFERENCE 2, PAPER 3), so saved scenes keep their mode."""
+    s = bpy_module.context.scene.gaussvdb
+    for name, value in (("REFERENCE", 2), ("PAPER", 3), ("SPLAT", 4), ("PARTICLES", 0)):
+        s.mode = name
+        assert s["mode"] == value
+    s["mode"] = 2  # as a file saved before Splat holds it
+    assert s.mode == "REFERENCE"
