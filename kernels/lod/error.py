@@ -135,6 +135,16 @@ def _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e):
 
 
 @njit(cache=True, inline="always")
+def gaussian_terms(c, g, corg, cent, sig, k2, c2, sid, tq, te, hh, q, e):
+    """axis_terms (power 1) of Gaussian g at cell c; from axis_tables' (c2, sid, tq, te, hh)
+    when hh >= 0 (the same bits)."""
+    if hh >= 0:
+        _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
+    else:
+        axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
+
+
+@njit(cache=True, inline="always")
 def cell_residual(c, cmask, cref, acc, res, act):
     """The residual reference - mixture at the active voxels i of cell c into res[i], act[i] = True
     there (both left as they are elsewhere). Returns (sum of squares, max |residual|, voxels)."""
@@ -228,12 +238,8 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te,
             lattice_cell(c, corg, k2, keys, nlg, slot, nodes, nper, nw, wr, wnode, qa, ea, tz, ez,
                          nlev, xys, xyt, xyl, xye, cost, nwm, nlm, nb, W, colnz, Z, acc)
             for p in range(cstart[c], cstart[c + 1]):
-                g = pg[p]
-                if hh >= 0:
-                    _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
-                else:
-                    axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
-                _add_gaussian(acc, w[g], k2, q, e)
+                gaussian_terms(c, pg[p], corg, cent, sig, k2, c2, sid, tq, te, hh, q, e)
+                _add_gaussian(acc, w[pg[p]], k2, q, e)
             sse[c], mx[c], npts[c] = cell_residual(c, cmask, cref, acc, res, act)
             it = 0.0
             un = 0.0

@@ -21,10 +21,9 @@ import numpy as np
 from ..jit import parallel_njit, prange
 from .error import (
     CELLS_PER_TASK,
-    _table_terms,
     axis_tables,
-    axis_terms,
     cell_residual,
+    gaussian_terms,
     pair_voxels,
 )
 from .error_pairs import distinct_sigmas
@@ -67,10 +66,7 @@ def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, den, c2, sid, tq, te, 
             for p in range(p0, cstart[c + 1]):
                 g = pg[p]
                 q, e = qs[p - p0], es[p - p0]
-                if hh >= 0:
-                    _table_terms(c, g, corg, c2, sid, tq, te, hh, q, e)
-                else:
-                    axis_terms(c, g, corg, cent, sig, 1.0, k2, q, e)
+                gaussian_terms(c, g, corg, cent, sig, k2, c2, sid, tq, te, hh, q, e)
                 wg[0], og[0] = w[g], ones[g]  # one: s1, or sum |w g|
                 if den == NONE:
                     pair_voxels(q, e, k2, False, False, acc, wg, one, og)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kernels.lod import build_lod
-from kernels.lod.splat import auto_spacing, lattice_to_index, splat_grid
+from kernels.lod.splat import _axis_tables, auto_spacing, lattice_to_index, splat_grid
 from kernels.lod.synthetic import grid_from_dense
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
 
@@ -41,9 +41,12 @@ def mixture_at(gs, pts):
     return out
 
 
-@pytest.mark.parametrize("spacing", [1, 2, 4])
-def test_lattice_holds_the_mixture(grid, spacing):
-    gs = build_lod(grid, "low")
+@pytest.mark.parametrize("lod, spacing", [("low", 1), ("low", 2), ("low", 4), ("high", 1)])
+def test_lattice_holds_the_mixture(grid, lod, spacing):
+    # High at spacing 1: centres on the half-voxel lattice, few sigmas (the axis tables' path)
+    gs = build_lod(grid if lod == "low" else blob(16), lod)
+    if lod == "high":
+        assert _axis_tables(gs.centers(), gs.sigmas.astype(np.float64), K)[-1] >= 0
     sg = splat_grid(gs, spacing, K)
     # active voxels: lattice index -> the set's index space -> the mixture there
     lo = np.asarray(sg.leaf_origins, np.int64)
@@ -80,6 +83,16 @@ def test_thread_count_does_not_change_the_lattice(grid):
     finally:
         numba.set_num_threads(old)
     assert np.array_equal(a.leaf_values, b.leaf_values) and np.array_equal(a.leaf_masks, b.leaf_masks)
+
+
+@pytest.mark.parametrize("lod, spacing", [("low", 2), ("high", 1)])
+def test_chunks_do_not_change_the_lattice(grid, lod, spacing):
+    """Cells are summed a chunk at a time (bounded memory): any chunk gives the same bits."""
+    gs = build_lod(grid, lod)
+    a, b = splat_grid(gs, spacing, K), splat_grid(gs, spacing, K, chunk=3)
+    assert len(a.leaf_origins) > 3
+    for f in ("leaf_origins", "leaf_masks", "leaf_values"):
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
 
 
 def view(grid, size=48):
