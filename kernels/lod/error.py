@@ -207,12 +207,27 @@ def pair_voxels(q, e, k2, gather, both, u, wu, v, wv):
 CELLS_PER_TASK = 16  # cells per parallel task: one set of scratch arrays per task
 
 
+@njit(cache=True, inline="always")
+def _store(c, acc, vals, masks):
+    """vals[c] = acc as float32, masks[c] = where acc is nonzero."""
+    for wd in range(8):
+        m = np.uint64(0)
+        for b in range(64):
+            v = acc[wd * 64 + b]
+            vals[c, wd * 64 + b] = np.float32(v)
+            if v != 0.0:
+                m |= np.uint64(1) << np.uint64(b)
+        masks[c, wd] = m
+
+
 @parallel_njit(cache=True)
 def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh, keys, nlg,
                 slot, nodes, nper, nw, wr, wnode, qa, ea, tz, ez, nlev, xys, xyt, xyl, xye, cost,
-                nwm, nlm):
+                nwm, nlm, vals, masks):
     """Per cell: squared residual, max |residual|, active voxels, and the occupancy's
     intersection and union. hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te, hh).
+    With vals (float32 (cells, 512); else empty) the mixture itself too, and in masks (uint64
+    (cells, 8)) where it is nonzero (a splat lattice: kernels.lod.splat).
     The lattice classes (keys ... nlm: error_lattice_sums.lattice_cell's) first, then the
     cell's pair list."""
     nc = corg.shape[0]
@@ -240,6 +255,8 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te,
             for p in range(cstart[c], cstart[c + 1]):
                 gaussian_terms(c, pg[p], corg, cent, sig, k2, c2, sid, tq, te, hh, q, e)
                 _add_gaussian(acc, w[pg[p]], k2, q, e)
+            if vals.shape[0]:
+                _store(c, acc, vals, masks)
             sse[c], mx[c], npts[c] = cell_residual(c, cmask, cref, acc, res, act)
             it = 0.0
             un = 0.0
@@ -366,8 +383,9 @@ class _Reach:
     minimum from the back of its low end are monotonic, so two binary searches bound the leaf
     Gaussians; tile groups (few, any size) are tested one by one."""
 
-    def __init__(self, gset, k, lattice=True):
+    def __init__(self, gset, k, lattice=True, values=None):
         self.gs, gstart, nl = gset, gset.group_start, gset.n_leaf_groups
+        self.values = gset.values if values is None else values
         self.origins = np.asarray(gset.group_origins).reshape(-1, 3)
         lo, hi = _group_reach(self.origins, gstart, gset.offsets, gset.sigmas, float(k))
         self.pmax = np.maximum.accumulate(hi[:nl])
@@ -397,7 +415,7 @@ class _Reach:
             self.buf = np.empty(int(size * 1.25))
         nodes = self.buf[:size]
         cent, sig, w, c2, sid, lattice, keys = gather_split(
-            grp, g.group_start, self.origins, g.offsets, g.sigmas, g.values, g.amplitudes, u, cls,
+            grp, g.group_start, self.origins, g.offsets, g.sigmas, self.values, g.amplitudes, u, cls,
             rest, self.ce, self.lattice[0], slot, nodes)
         lat = (keys, g1 - g0, slot, nodes, *self.lattice)
         if lattice and self.tables is not None:
@@ -413,49 +431,65 @@ _NO_LATTICE = (np.zeros(0, np.int64), 0, np.zeros((0, 0), np.int64), np.zeros(0)
                *class_tables(*_NO_CLASSES, DEFAULT_K))
 
 
+NO_VALUES = (np.zeros((0, 512), np.float32), np.zeros((0, 8), np.uint64))  # _eval_cells: no mixture out
 LUT_CELLS = 1 << 22  # a chunk's dense cell box (int32) up to 16 MB
 DEFAULT_CHUNK = 8192  # cells per evaluation chunk: bounds its pair lists (~500 a cell) and class nodes
 
 
-def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK, lattice=True):
-    """The per-cell figures of _eval_cells over every cell (sorted by key), a chunk of cells at a
-    time: each chunk lists only its own pairs, with its Gaussians in the set's order, so every
-    cell sums the same terms in the same order as one list over all cells would. The lattice
-    classes (error_lattice.py; ``lattice=False``: none) are summed from their nodes instead, the
-    same terms in another order, again the same for any chunk."""
-    t = cell_index(grid, gset)
-    nc, kk = len(t["keys"]), float(k)
-    out = [np.zeros(nc) for _ in range(5)]
+def mixture_chunks(keys, corg, gset, k, chunk=DEFAULT_CHUNK, lattice=True, values=None):
+    """Per chunk of cells (sorted by key): (a, b, the arguments of _eval_cells after corg, cmask,
+    cref: the chunk's pair lists, Gaussians, tables and lattice classes). Each chunk lists only
+    its own pairs, with its Gaussians in the set's order, so every cell sums the same terms in
+    the same order as one list over all cells would. The lattice classes (error_lattice.py;
+    ``lattice=False``: none) are summed from their nodes instead, the same terms in another
+    order, again the same for any chunk. ``values``: the weights' values (default the set's)."""
+    nc, kk = len(keys), float(k)
     # the lattice sums take cells on the leaf lattice (tiles are aligned to their size)
-    reach = _Reach(gset, kk, lattice and not np.any(t["corg"] & 7))
-    pairs = 0
+    reach = _Reach(gset, kk, lattice and not np.any(corg & 7), values)
     for a in range(0, nc, max(1, int(chunk))):
         b = min(nc, a + max(1, int(chunk)))
-        keys, corg = t["keys"][a:b], t["corg"][a:b]
-        cent, sig, w, tab, lat = reach.geometry(corg[0, 0] >> 3, corg[-1, 0] >> 3)
-        lmin = corg.min(0) >> 3
-        dims = (corg.max(0) >> 3) - lmin + 1
+        ck, co = keys[a:b], corg[a:b]
+        cent, sig, w, tab, lat = reach.geometry(co[0, 0] >> 3, co[-1, 0] >> 3)
         if len(cent) == 0:  # every Gaussian within reach is on the lattice
-            start, pc = np.zeros(1, np.int64), np.zeros(0, np.int32)
-        elif np.prod(dims) <= LUT_CELLS:  # the chunk's cells in a dense box
-            lut = np.full(tuple(dims), -1, np.int32)
-            rel = (corg >> 3) - lmin
-            lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(b - a, dtype=np.int32)
-            start, pc = _lut_pairs(cent, sig, kk, lut, lmin)
-        else:  # scattered cells: binary searches in their keys
-            cnt = _count_pairs(cent, sig, kk, keys, corg)
-            start = np.zeros(len(cnt) + 1, np.int64)
-            np.cumsum(cnt, out=start[1:])
-            pc = np.empty(int(start[-1]), np.int32)
-            _fill_pairs(cent, sig, kk, keys, corg, start, pc)
-        cstart, pg = _by_cell(start, pc, b - a)
-        del pc
-        pairs += len(pg)
+            cstart, pg = np.zeros(b - a + 1, np.int64), np.zeros(0, np.int32)
+        else:
+            cstart, pg = chunk_pairs(cent, sig, kk, co, ck)
+        yield a, b, (cstart, pg, cent, sig, w, kk, *tab, *lat)
+
+
+def chunk_pairs(cent, sig, k, corg, keys):
+    """(cstart, pg): the Gaussians (indices into cent) of a chunk of cells, each cell's in
+    increasing order, from a dense box of the chunk's cells when it is small, else by key search."""
+    lmin = corg.min(0) >> 3
+    dims = (corg.max(0) >> 3) - lmin + 1
+    if np.prod(dims) <= LUT_CELLS:
+        lut = np.full(tuple(dims), -1, np.int32)
+        rel = (corg >> 3) - lmin
+        lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(len(corg), dtype=np.int32)
+        start, pc = _lut_pairs(cent, sig, k, lut, lmin)
+    else:
+        cnt = _count_pairs(cent, sig, k, keys, corg)
+        start = np.zeros(len(cnt) + 1, np.int64)
+        np.cumsum(cnt, out=start[1:])
+        pc = np.empty(int(start[-1]), np.int32)
+        _fill_pairs(cent, sig, k, keys, corg, start, pc)
+    return _by_cell(start, pc, len(corg))
+
+
+def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK, lattice=True):
+    """The per-cell figures of _eval_cells over every cell (sorted by key), a chunk of cells at a
+    time (mixture_chunks)."""
+    t = cell_index(grid, gset)
+    nc = len(t["keys"])
+    out = [np.zeros(nc) for _ in range(5)]
+    pairs = 0
+    for a, b, args in mixture_chunks(t["keys"], t["corg"], gset, k, chunk, lattice):
+        pairs += len(args[1])
         cref = _cref(t["ref"], t["rows"][a:b], t["is_ls"])
-        res = _eval_cells(corg, t["cmask"][a:b], cref, cstart, pg, cent, sig, w, kk, *tab, *lat)
+        res = _eval_cells(t["corg"][a:b], t["cmask"][a:b], cref, *args, *NO_VALUES)
         for o, r in zip(out, res):
             o[a:b] = r
-    return dict(t, pairs=pairs, k=kk), out
+    return dict(t, pairs=pairs, k=float(k)), out
 
 
 def cell_errors(grid, gset, k=DEFAULT_K, chunk=DEFAULT_CHUNK):

@@ -16,17 +16,27 @@ thread count.
 """
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 
-from ..jit import parallel_njit, prange
+from ..jit import njit, parallel_njit, prange
 from ..vdb.griddata import GridData
-from .error import DEFAULT_K, LUT_CELLS, _add_gaussian, axis_tables, gaussian_terms
-from .error_pairs import _by_cell, _count_pairs, _fill_pairs, _lut_pairs, distinct_sigmas
+from .error import (
+    _NO_LATTICE,
+    DEFAULT_K,
+    _eval_cells,
+    axis_tables,
+    chunk_pairs,
+    mixture_chunks,
+)
+from .error_pairs import distinct_sigmas
 
 SPACINGS = (1, 2, 4, 8)
 STEP = 1.0  # a ray step of one lattice cell resolves the field: the lattice follows the Gaussians' scale
 OFF = 1 << 20  # the cell key's offset (error_pairs._key)
 MAX_CELLS = 1 << 22  # 8^3 cells of the lattice (16 GB of float64 sums would be far past it)
+DENSE_CELLS = 1 << 27  # the cells' common box marked densely up to this many (128 MB of bools)
 CHUNK = 8192  # cells summed at a time: bounds the pair lists (a few hundred a cell at High)
 
 
@@ -37,38 +47,29 @@ def auto_spacing(gset):
     dense, 2 where many are partial; Medium and High 1). Weighted by voxels, not counted: a LOD's
     many small Gaussians on sparse edges would otherwise set the lattice for its few large ones
     that fill the volume."""
-    sig = np.asarray(gset.sigmas, np.float64).reshape(-1, 3).min(axis=1)
-    if len(sig) == 0:
-        return 1
+    sig = np.asarray(gset.sigmas).reshape(-1, 3)
     vox = getattr(gset, "voxels", None)
-    w = np.ones(len(sig)) if vox is None else np.maximum(np.asarray(vox, np.float64), 1.0)
-    o = np.argsort(sig, kind="stable")
-    cum = np.cumsum(w[o])
-    s = float(sig[o][np.searchsorted(cum, 0.1 * cum[-1])]) / 1.2
-    return int(max(sp for sp in SPACINGS if sp <= max(s, 1.0)))
+    vox = np.zeros(0, np.int64) if vox is None else np.asarray(vox)
+    below, total = _weight_below(sig, vox, np.asarray(SPACINGS, np.float64))
+    # the quantile q passes spacing sp (q / 1.2 >= sp) when the Gaussians below sp weigh < 10%
+    return max(sp for sp, b in zip(SPACINGS, below) if sp == 1 or b < 0.1 * total)
 
 
-@parallel_njit(cache=True)
-def _cell_values(corg, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh, vals, masks):
-    """Per cell, the mixture of its listed Gaussians at its 512 voxel centres, as float32 values
-    and active masks (nonzero sums). hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te,
-    hh), the same bits as axis_terms."""
-    k2 = k * k
-    for c in prange(corg.shape[0]):
-        acc = np.zeros(512)
-        q = np.empty((3, 8))
-        e = np.empty((3, 8))
-        for p in range(cstart[c], cstart[c + 1]):
-            gaussian_terms(c, pg[p], corg, cent, sig, k2, c2, sid, tq, te, hh, q, e)
-            _add_gaussian(acc, w[pg[p]], k2, q, e)
-        for wd in range(8):
-            m = np.uint64(0)
-            for b in range(64):
-                v = acc[wd * 64 + b]
-                vals[c, wd * 64 + b] = np.float32(v)
-                if v != 0.0:
-                    m |= np.uint64(1) << np.uint64(b)
-            masks[c, wd] = m
+@njit(cache=True)
+def _weight_below(sigmas, vox, spacings):
+    """The voxels (at least 1 a Gaussian; 1 each without vox) of the Gaussians whose smallest
+    sigma / 1.2 is below each spacing, and of all: one pass, no sort (21 M sigmas at High, 4x
+    MNI). Sums of whole numbers: exact in any order."""
+    below = np.zeros(spacings.shape[0])
+    total = 0.0
+    for g in range(sigmas.shape[0]):
+        m = min(np.float64(sigmas[g, 0]), np.float64(sigmas[g, 1]), np.float64(sigmas[g, 2])) / 1.2
+        w = max(np.float64(vox[g]), 1.0) if vox.shape[0] else 1.0
+        total += w
+        for j in range(spacings.shape[0]):
+            if m < spacings[j]:
+                below[j] += w
+    return below, total
 
 
 @parallel_njit(cache=True)
@@ -83,33 +84,39 @@ def _fill_keys(lo, hi, start, keys):
 
 
 @parallel_njit(cache=True)
-def _group_boxes(cent, sig, k, first, end):
-    """Per group, the cells (index >> 3) its Gaussians' k-sigma boxes span: lo, hi (int64 (n, 3))."""
-    n = first.shape[0]
+def _group_boxes(origins, gstart, offsets, sigmas, o, s, k):
+    """Per group, the cells (index >> 3) of the lattice its Gaussians' k-sigma boxes span (lo,
+    hi: int64 (groups, 3); lo > hi for an empty group), centres and sigmas in lattice units as
+    _geometry makes them (the same bits)."""
+    n = gstart.shape[0] - 1
     lo = np.empty((n, 3), np.int64)
     hi = np.empty((n, 3), np.int64)
     for i in prange(n):
         for a in range(3):
             lo[i, a] = np.iinfo(np.int64).max
             hi[i, a] = np.iinfo(np.int64).min
-        for g in range(first[i], end[i]):
+        for g in range(gstart[i], gstart[i + 1]):
             for a in range(3):
-                r = k * sig[g, a]
-                lo[i, a] = min(lo[i, a], np.int64(np.ceil(cent[g, a] - r)) >> 3)
-                hi[i, a] = max(hi[i, a], np.int64(np.floor(cent[g, a] + r)) >> 3)
+                c = (np.float64(origins[i, a]) + np.float64(offsets[g, a]) - o) / s
+                r = k * (np.float64(sigmas[g, a]) / s)
+                lo[i, a] = min(lo[i, a], np.int64(np.ceil(c - r)) >> 3)
+                hi[i, a] = max(hi[i, a], np.int64(np.floor(c + r)) >> 3)
     return lo, hi
 
 
-def _cells(cent, sig, k, gstart):
-    """The 8^3 cells (origins, int64 (n, 3), and keys, sorted by key) of the boxes that hold each
-    group's supports (the voxel centres within k sigma, as the pair lists count them): a group's
-    box, not each Gaussian's, so the list before de-duplication stays near the groups' count;
-    cells no support reaches come out empty and are dropped. Also each non-empty group's
-    Gaussians (first, end) and the cell x its box spans (lo, hi): what a chunk of cells gathers."""
-    gstart = np.asarray(gstart, np.int64)
-    full = np.diff(gstart) > 0
-    first, end = gstart[:-1][full], gstart[1:][full]
-    lo, hi = _group_boxes(cent, sig, float(k), first, end)
+def _box_keys(lo, hi, dense=DENSE_CELLS):
+    """The sorted keys of the cells in the union of the boxes [lo, hi] (int64 (n, 3)): marked in
+    a dense array over their common box where it is small (no sort), else listed and
+    de-duplicated."""
+    if not len(lo):
+        return np.zeros(0, np.int64)
+    base = lo.min(axis=0)
+    dims = hi.max(axis=0) - base + 1
+    if np.prod(dims.astype(np.float64)) <= dense:
+        occ = np.zeros(tuple(dims), np.bool_)
+        _mark_boxes(lo, hi, base, occ)
+        xyz = np.argwhere(occ) + base  # C order: x, then y, then z, the keys' order
+        return ((xyz[:, 0] + OFF) << 42) | ((xyz[:, 1] + OFF) << 21) | (xyz[:, 2] + OFF)
     cnt = np.prod(np.maximum(hi - lo + 1, 0).astype(np.float64), axis=1)
     if cnt.sum() > 16 * MAX_CELLS:
         raise ValueError(f"the splat grid's supports reach {cnt.sum():,.0f} cells "
@@ -118,13 +125,41 @@ def _cells(cent, sig, k, gstart):
     np.cumsum(cnt.astype(np.int64), out=start[1:])
     keys = np.empty(int(start[-1]), np.int64)
     _fill_keys(lo, hi, start, keys)
-    keys = np.unique(keys)
+    return np.unique(keys)
+
+
+@njit(cache=True)
+def _mark_boxes(lo, hi, base, occ):
+    for g in range(lo.shape[0]):
+        for x in range(lo[g, 0] - base[0], hi[g, 0] - base[0] + 1):
+            for y in range(lo[g, 1] - base[1], hi[g, 1] - base[1] + 1):
+                for z in range(lo[g, 2] - base[2], hi[g, 2] - base[2] + 1):
+                    occ[x, y, z] = True
+
+
+Cells = collections.namedtuple("Cells", "corg keys first end xlo xhi")
+Cells.__doc__ = """A splat lattice's 8^3 cells (origins int64 (n, 3), keys; sorted by key) and each
+non-empty group's Gaussians [first, end) with the cell x its box spans [xlo, xhi]."""
+
+
+def _cells(gset, s, k):
+    """The Cells of the boxes that hold each group's supports (the lattice centres within k sigma,
+    as the pair lists count them): a group's box, not each Gaussian's, so the list before
+    de-duplication stays near the groups' count; cells no support reaches come out empty and are
+    dropped."""
+    gstart = np.asarray(gset.group_start, np.int64)
+    origins = np.asarray(gset.group_origins).reshape(-1, 3)
+    lo, hi = _group_boxes(origins, gstart, np.asarray(gset.offsets), np.asarray(gset.sigmas),
+                          (s - 1) / 2.0, float(s), k)
+    full = np.diff(gstart) > 0
+    first, end, lo, hi = gstart[:-1][full], gstart[1:][full], lo[full], hi[full]
+    keys = _box_keys(lo, hi)
     if len(keys) > MAX_CELLS:
         raise ValueError(f"the splat grid would hold {len(keys):,} leaves (limit {MAX_CELLS:,}): "
                          "choose a coarser spacing")
     mask = (1 << 21) - 1
     corg = np.stack([(keys >> 42) - OFF, ((keys >> 21) & mask) - OFF, (keys & mask) - OFF], axis=1) * 8
-    return corg.astype(np.int64), keys, (first, end, lo[:, 0], hi[:, 0])
+    return Cells(corg.astype(np.int64), keys, first, end, lo[:, 0], hi[:, 0])
 
 
 def _axis_tables(cent, sig, k):
@@ -142,30 +177,39 @@ def _axis_tables(cent, sig, k):
     return np.zeros((0, 3), np.int64), np.zeros((0, 3), np.int32), np.zeros((0, 0)), np.zeros((0, 0)), -1
 
 
-def _chunk_pairs(cent, sig, k, corg, keys):
-    """(cstart, pg): a chunk's cells' Gaussians (indices into cent), each cell's in increasing
-    order, from a dense box of the chunk's cells when it is small, else by key search."""
-    lmin = corg.min(0) >> 3
-    dims = (corg.max(0) >> 3) - lmin + 1
-    if np.prod(dims) <= LUT_CELLS:
-        lut = np.full(tuple(dims), -1, np.int32)
-        rel = (corg >> 3) - lmin
-        lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(len(corg), dtype=np.int32)
-        start, pc = _lut_pairs(cent, sig, k, lut, lmin)
-    else:
-        cnt = _count_pairs(cent, sig, k, keys, corg)
-        start = np.zeros(len(cnt) + 1, np.int64)
-        np.cumsum(cnt, out=start[1:])
-        pc = np.empty(int(start[-1]), np.int32)
-        _fill_pairs(cent, sig, k, keys, corg, start, pc)
-    return _by_cell(start, pc, len(corg))
-
-
-def _centers(gset):
-    """float64 (M, 3) index-space centres of a Gaussian set (duck-typed: group origins + offsets)."""
+def _geometry(gset, s, wv):
+    """Centres and sigmas in lattice units (float64 (M, 3)) and weights value x amplitude of a
+    Gaussian set (duck-typed: group origins + offsets)."""
     counts = np.diff(np.asarray(gset.group_start, np.int64))
     origins = np.asarray(gset.group_origins, np.float64).reshape(-1, 3)
-    return np.repeat(origins, counts, axis=0) + np.asarray(gset.offsets, np.float64)
+    cent = (np.repeat(origins, counts, axis=0) + np.asarray(gset.offsets, np.float64) - (s - 1) / 2.0) / s
+    sig = np.asarray(gset.sigmas, np.float64) / s
+    return cent, sig, wv * np.asarray(gset.amplitudes, np.float64)
+
+
+_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], np.int64)
+_NO_REF = np.zeros((1, 512), np.float32)  # _eval_cells' reference: no voxel is active (cmask 0)
+
+
+def _chunks(gset, s, wv, k, cells, chunk):
+    """Per chunk of cells (sorted by key, so by x): (a, b, _eval_cells' arguments after corg,
+    cmask, cref). On the voxel lattice (spacing 1), the field error's own evaluation
+    (error.mixture_chunks: its lattice classes and axis tables); coarser, the Gaussians of the
+    groups whose boxes reach the chunk's x span, in the set's order, on pair lists."""
+    chunk = max(1, int(chunk))
+    if s == 1 and hasattr(gset, "n_leaf_groups"):
+        yield from mixture_chunks(cells.keys, cells.corg, gset, k, chunk, values=wv)
+        return
+    cent, sig, w = _geometry(gset, s, wv)
+    tab = _axis_tables(cent, sig, k)
+    corg = cells.corg
+    for a in range(0, len(corg), chunk):
+        b = min(len(corg), a + chunk)
+        sel = (cells.xlo <= corg[b - 1, 0] >> 3) & (cells.xhi >= corg[a, 0] >> 3)
+        idx = _ranges(cells.first[sel], cells.end[sel])
+        cstart, pg = chunk_pairs(cent[idx], sig[idx], k, corg[a:b], cells.keys[a:b])
+        ctab = tab if tab[-1] < 0 else (tab[0][idx], tab[1][idx], *tab[2:])
+        yield a, b, (cstart, pg, cent[idx], sig[idx], w[idx], k, *ctab, *_NO_LATTICE)
 
 
 def _ranges(first, end):
@@ -194,35 +238,29 @@ def splat_grid(gset, spacing=None, k=DEFAULT_K, name=None, values=None, backgrou
     s = auto_spacing(gset) if spacing is None else int(spacing)
     if s not in SPACINGS:
         raise ValueError(f"spacing must be one of {SPACINGS}, not {spacing!r}")
-    o = (s - 1) / 2.0
-    cent = (_centers(gset) - o) / s
-    sig = np.asarray(gset.sigmas, np.float64) / s
     if values is None:
         ls = getattr(gset, "grid_class", None) == "level_set"
-        values = np.ones(len(sig)) if ls else gset.values
-    w = np.nan_to_num(np.asarray(values, np.float64)) * np.asarray(gset.amplitudes, np.float64)
+        values = np.ones(len(gset.sigmas)) if ls else gset.values
+    wv = np.asarray(values)  # float32 stays so (read as float64 per Gaussian)
+    if wv.dtype.kind != "f":
+        wv = wv.astype(np.float64)
+    if not np.isfinite(wv).all():
+        wv = np.nan_to_num(wv)
     kk = float(k)
-    corg, keys, (first, end, glo, ghi) = _cells(cent, sig, kk, gset.group_start)
+    cells = _cells(gset, s, kk)
+    corg = cells.corg
     n = len(corg)
     vals = np.empty((n, 512), np.float32)
     masks = np.empty((n, 8), np.uint64)
-    tab = _axis_tables(cent, sig, kk)
-    # a chunk of cells (sorted by key, so by x) at a time, with the Gaussians of the groups whose
-    # boxes reach its x span in the set's order: each cell sums what one list over all would
-    chunk = max(1, int(chunk))
-    for a in range(0, n, chunk):
-        b = min(n, a + chunk)
-        sel = (glo <= corg[b - 1, 0] >> 3) & (ghi >= corg[a, 0] >> 3)
-        idx = _ranges(first[sel], end[sel])
-        cstart, pg = _chunk_pairs(cent[idx], sig[idx], kk, corg[a:b], keys[a:b])
-        ctab = tab if tab[-1] < 0 else (tab[0][idx], tab[1][idx], *tab[2:])
-        _cell_values(corg[a:b], cstart, pg, cent[idx], sig[idx], w[idx], kk, *ctab, vals[a:b], masks[a:b])
+    for a, b, args in _chunks(gset, s, wv, kk, cells, chunk):
+        _eval_cells(corg[a:b], np.zeros((b - a, 8), np.uint64), _NO_REF, *args, vals[a:b], masks[a:b])
     keep = masks.any(axis=1)
-    corg, vals, masks = corg[keep], vals[keep], masks[keep]
+    if not keep.all():
+        corg, vals, masks = corg[keep], vals[keep], masks[keep]
     if background:
         vals += np.float32(background)
     m = np.asarray(getattr(gset, "index_to_world", np.eye(4)), np.float64) @ lattice_to_index(s)
-    nact = int(np.unpackbits(masks.view(np.uint8)).sum()) if len(masks) else 0
+    nact = int(_POPCOUNT[masks.view(np.uint8)].sum())
     lo = corg.min(axis=0) if len(corg) else np.zeros(3, np.int64)
     hi = corg.max(axis=0) + 7 if len(corg) else -np.ones(3, np.int64)
     return GridData(name=name or "splat", grid_class="fog_volume", value_type="float",

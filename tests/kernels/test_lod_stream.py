@@ -25,7 +25,7 @@ def one_pass(grid, gs):
     st = E.setup(grid, gs)
     w = gs.values.astype(np.float64) * gs.amplitudes.astype(np.float64)
     return E._eval_cells(st["corg"], st["cmask"], st["cref"], st["cstart"], st["pg"], st["cent"],
-                         st["sig"], w, st["k"], *E._NO_TABLES, *E._NO_LATTICE)
+                         st["sig"], w, st["k"], *E._NO_TABLES, *E._NO_LATTICE, *E.NO_VALUES)
 
 
 CASES = [("high", "fog_volume"), ("low", "fog_volume"), ("variance", "fog_volume"),

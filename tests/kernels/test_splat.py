@@ -1,10 +1,12 @@
 """Splat mode: the Gaussian field on a lattice (kernels.lod.splat), drawn as voxels
 (kernels.render.splat_scene)."""
+import types
+
 import numpy as np
 import pytest
 
 from kernels.lod import build_lod
-from kernels.lod.splat import _axis_tables, auto_spacing, lattice_to_index, splat_grid
+from kernels.lod.splat import _axis_tables, _box_keys, auto_spacing, lattice_to_index, splat_grid
 from kernels.lod.synthetic import grid_from_dense
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
 
@@ -68,6 +70,30 @@ def test_spacing_follows_the_lod(grid):
     assert splat_grid(low).active_voxels < splat_grid(high).active_voxels / 1.5  # the cost follows the LOD
     with pytest.raises(ValueError, match="spacing"):
         splat_grid(low, 3)
+
+
+def test_spacing_is_the_voxel_weighted_quantile():
+    """auto_spacing counts weights below each spacing (no sort): the same as the sorted 10%
+    quantile of the smallest sigmas, weighted by voxels, over 1.2."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        n = int(rng.integers(1, 400))
+        gs = types.SimpleNamespace(sigmas=rng.uniform(0.3, 12.0, (n, 3)).astype(np.float32),
+                                   voxels=rng.integers(0, 512, n).astype(np.int32))
+        sig = gs.sigmas.astype(np.float64).min(1)
+        w = np.maximum(gs.voxels, 1).astype(np.float64)
+        o = np.argsort(sig, kind="stable")
+        cum = np.cumsum(w[o])
+        q = sig[o][np.searchsorted(cum, 0.1 * cum[-1])] / 1.2
+        assert auto_spacing(gs) == max(sp for sp in (1, 2, 4, 8) if sp <= max(q, 1.0))
+
+
+def test_cells_marked_densely_are_the_listed_ones():
+    rng = np.random.default_rng(4)
+    lo = rng.integers(-40, 40, (300, 3))
+    hi = lo + rng.integers(0, 4, (300, 3))
+    dense, listed = _box_keys(lo, hi), _box_keys(lo, hi, dense=0)
+    assert len(dense) > 300 and np.array_equal(dense, listed)
 
 
 def test_thread_count_does_not_change_the_lattice(grid):
