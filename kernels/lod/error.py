@@ -32,15 +32,7 @@ import numpy as np
 from ..jit import njit, parallel_njit, prange
 from .error_lattice import class_tables, classify, gather_split, lattice_classes, node_slots
 from .error_lattice_sums import lattice_cell
-from .error_pairs import (
-    _OFF,
-    _by_cell,
-    _count_pairs,
-    _fill_pairs,
-    _group_reach,
-    _lut_pairs,
-    distinct_sigmas,
-)
+from .error_pairs import _OFF, _count_pairs, _fill_pairs, _group_reach, chunk_pairs, distinct_sigmas
 from .gridprep import effective_masks, finite_grid, value_range
 from .levelset import band_threshold
 
@@ -432,7 +424,6 @@ _NO_LATTICE = (np.zeros(0, np.int64), 0, np.zeros((0, 0), np.int64), np.zeros(0)
 
 
 NO_VALUES = (np.zeros((0, 512), np.float32), np.zeros((0, 8), np.uint64))  # _eval_cells: no mixture out
-LUT_CELLS = 1 << 22  # a chunk's dense cell box (int32) up to 16 MB
 DEFAULT_CHUNK = 8192  # cells per evaluation chunk: bounds its pair lists (~500 a cell) and class nodes
 
 
@@ -455,25 +446,6 @@ def mixture_chunks(keys, corg, gset, k, chunk=DEFAULT_CHUNK, lattice=True, value
         else:
             cstart, pg = chunk_pairs(cent, sig, kk, co, ck)
         yield a, b, (cstart, pg, cent, sig, w, kk, *tab, *lat)
-
-
-def chunk_pairs(cent, sig, k, corg, keys):
-    """(cstart, pg): the Gaussians (indices into cent) of a chunk of cells, each cell's in
-    increasing order, from a dense box of the chunk's cells when it is small, else by key search."""
-    lmin = corg.min(0) >> 3
-    dims = (corg.max(0) >> 3) - lmin + 1
-    if np.prod(dims) <= LUT_CELLS:
-        lut = np.full(tuple(dims), -1, np.int32)
-        rel = (corg >> 3) - lmin
-        lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(len(corg), dtype=np.int32)
-        start, pc = _lut_pairs(cent, sig, k, lut, lmin)
-    else:
-        cnt = _count_pairs(cent, sig, k, keys, corg)
-        start = np.zeros(len(cnt) + 1, np.int64)
-        np.cumsum(cnt, out=start[1:])
-        pc = np.empty(int(start[-1]), np.int32)
-        _fill_pairs(cent, sig, k, keys, corg, start, pc)
-    return _by_cell(start, pc, len(corg))
 
 
 def _evaluate(grid, gset, k, chunk=DEFAULT_CHUNK, lattice=True):

@@ -9,6 +9,7 @@ import numpy as np
 from ..jit import njit, parallel_njit, prange
 
 _OFF = np.int64(1 << 20)
+LUT_CELLS = 1 << 22  # a chunk's dense cell box (int32) up to 16 MB
 
 
 @njit(cache=True, inline="always")
@@ -164,3 +165,22 @@ def distinct_sigmas(sig, most=64):
                 u[n] = v
                 n += 1
     return u[:n], True
+
+
+def chunk_pairs(cent, sig, k, corg, keys):
+    """(cstart, pg): the Gaussians (indices into cent) of a chunk of cells, each cell's in
+    increasing order, from a dense box of the chunk's cells when it is small, else by key search."""
+    lmin = corg.min(0) >> 3
+    dims = (corg.max(0) >> 3) - lmin + 1
+    if np.prod(dims) <= LUT_CELLS:
+        lut = np.full(tuple(dims), -1, np.int32)
+        rel = (corg >> 3) - lmin
+        lut[rel[:, 0], rel[:, 1], rel[:, 2]] = np.arange(len(corg), dtype=np.int32)
+        start, pc = _lut_pairs(cent, sig, k, lut, lmin)
+    else:
+        cnt = _count_pairs(cent, sig, k, keys, corg)
+        start = np.zeros(len(cnt) + 1, np.int64)
+        np.cumsum(cnt, out=start[1:])
+        pc = np.empty(int(start[-1]), np.int32)
+        _fill_pairs(cent, sig, k, keys, corg, start, pc)
+    return _by_cell(start, pc, len(corg))

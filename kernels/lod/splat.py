@@ -22,15 +22,8 @@ import numpy as np
 
 from ..jit import njit, parallel_njit, prange
 from ..vdb.griddata import GridData
-from .error import (
-    _NO_LATTICE,
-    DEFAULT_K,
-    _eval_cells,
-    axis_tables,
-    chunk_pairs,
-    mixture_chunks,
-)
-from .error_pairs import distinct_sigmas
+from .error import _NO_LATTICE, DEFAULT_K, _eval_cells, axis_tables, mixture_chunks
+from .error_pairs import chunk_pairs, distinct_sigmas
 
 SPACINGS = (1, 2, 4, 8)
 STEP = 1.0  # a ray step of one lattice cell resolves the field: the lattice follows the Gaussians' scale
