@@ -24,7 +24,6 @@ import numpy as np
 from ..cachedir import set_cache_root
 from . import packing
 from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds, tile_budget
-from .camera import Camera
 from .scene import Mode, RenderScene, same_geometry
 from .splat_scene import SplatGrids
 from .transfer import TransferFunction, range_alpha, resampled
@@ -331,14 +330,13 @@ class CPUDevice(Device):
         self._frame = None
 
     def load_kernels(self):
-        from .scene import RenderObject
-        from .synthetic import gaussian_set
+        from .synthetic import warm_objects
 
         t0 = time.perf_counter()
         tiny = CPUDevice(threads=self.threads)  # a throwaway: this device's state stays as it is
-        sc = RenderScene([RenderObject(gaussian_set([[0.0, 0.0, 0.0]], 1.0, [1.0], [1.0]))])
-        cam = Camera.frame_box([-3.0] * 3, [3.0] * 3, 8, 8)
-        tiny.render(sc, cam, TransferFunction.from_colormap("grayscale", 0.0, 1.0))
+        objs, cam = warm_objects()
+        for mode in ("particles", "splat"):  # splat: its lattices' and the voxel bricks' kernels too
+            tiny.render(RenderScene(objs, mode=mode), cam, TransferFunction.from_colormap("grayscale", 0.0, 1.0))
         return time.perf_counter() - t0
 
     def _build_frame(self, mode, scene, camera, prep):

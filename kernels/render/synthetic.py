@@ -83,3 +83,17 @@ def grid_from_dense(values, origin=(0, 0, 0), *, grid_class="fog_volume", backgr
         tile_origins=np.zeros((0, 3), np.int32), tile_sizes=np.zeros(0, np.int32),
         tile_values=np.zeros(0, np.float32), tile_active=np.zeros(0, bool),
         active_voxels=int(act.sum()), bbox_min=o.copy(), bbox_max=hi - 1)
+
+
+def warm_objects():
+    """Render objects and a camera on them that reach every kernel a frame can run (the
+    device's load_kernels): a Low and a High set of a small block, real GaussianSets (splat: a
+    coarse lattice and one of single voxels, with the dtypes imports make)."""
+    from ..lod import build_lod
+    from ..lod.synthetic import grid_from_dense
+    from .camera import Camera
+    from .scene import RenderObject
+
+    g = grid_from_dense(np.ones((16, 8, 8), np.float32))
+    objs = [RenderObject(build_lod(g, lod), np.eye(4)) for lod in ("low", "high")]
+    return objs, Camera.frame_box([-3.0] * 3, [19.0] * 3, 8, 8)
