@@ -32,7 +32,7 @@ import numpy as np
 from ..jit import njit, parallel_njit, prange
 from .error_lattice import class_tables, classify, gather_split, lattice_classes, node_slots
 from .error_lattice_sums import lattice_cell
-from .error_pairs import _OFF, _count_pairs, _fill_pairs, _group_reach, chunk_pairs, distinct_sigmas
+from .error_pairs import _OFF, _count_pairs, _fill_pairs, chunk_pairs, distinct_sigmas, group_boxes
 from .gridprep import effective_masks, finite_grid, value_range
 from .levelset import band_threshold
 
@@ -379,7 +379,8 @@ class _Reach:
         self.gs, gstart, nl = gset, gset.group_start, gset.n_leaf_groups
         self.values = gset.values if values is None else values
         self.origins = np.asarray(gset.group_origins).reshape(-1, 3)
-        lo, hi = _group_reach(self.origins, gstart, gset.offsets, gset.sigmas, float(k))
+        lo, hi = (b[:, 0] for b in group_boxes(self.origins, gstart, np.asarray(gset.offsets),
+                                                 np.asarray(gset.sigmas), 0.0, 1.0, float(k)))
         self.pmax = np.maximum.accumulate(hi[:nl])
         self.smin = np.minimum.accumulate(lo[:nl][::-1])[::-1]
         self.tlo, self.thi, self.nl = lo[nl:], hi[nl:], nl

@@ -114,18 +114,23 @@ def _fill_pairs(cent, sig, k, keys, corg, start, out):
 
 
 @parallel_njit(cache=True)
-def _group_reach(origins, gstart, offsets, sig, k):
-    """Per group, the lowest and highest cell x (index >> 3) its Gaussians' k-sigma boxes reach,
-    computed as _cells_of does."""
-    ng = gstart.shape[0] - 1
-    lo = np.full(ng, np.iinfo(np.int64).max, np.int64)
-    hi = np.full(ng, np.iinfo(np.int64).min, np.int64)
-    for gi in prange(ng):
-        for j in range(gstart[gi], gstart[gi + 1]):
-            c = np.float64(origins[gi, 0]) + np.float64(offsets[j, 0])
-            r = k * np.float64(sig[j, 0])
-            lo[gi] = min(lo[gi], np.int64(np.ceil(c - r)) >> 3)
-            hi[gi] = max(hi[gi], np.int64(np.floor(c + r)) >> 3)
+def group_boxes(origins, gstart, offsets, sigmas, o, s, k):
+    """Per group, the cells (index >> 3) its Gaussians' k-sigma boxes span, as _cells_of finds
+    them (lo, hi: int64 (groups, 3); lo > hi for an empty group), on a lattice of spacing s whose
+    voxel j stands at s j + o (splat.py; s = 1, o = 0: the voxels themselves, the same bits)."""
+    n = gstart.shape[0] - 1
+    lo = np.empty((n, 3), np.int64)
+    hi = np.empty((n, 3), np.int64)
+    for i in prange(n):
+        for a in range(3):
+            lo[i, a] = np.iinfo(np.int64).max
+            hi[i, a] = np.iinfo(np.int64).min
+        for g in range(gstart[i], gstart[i + 1]):
+            for a in range(3):
+                c = (np.float64(origins[i, a]) + np.float64(offsets[g, a]) - o) / s
+                r = k * (np.float64(sigmas[g, a]) / s)
+                lo[i, a] = min(lo[i, a], np.int64(np.ceil(c - r)) >> 3)
+                hi[i, a] = max(hi[i, a], np.int64(np.floor(c + r)) >> 3)
     return lo, hi
 
 

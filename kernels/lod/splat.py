@@ -23,7 +23,7 @@ import numpy as np
 from ..jit import njit, parallel_njit, prange
 from ..vdb.griddata import GridData
 from .error import _NO_LATTICE, DEFAULT_K, _eval_cells, axis_tables, mixture_chunks
-from .error_pairs import chunk_pairs, distinct_sigmas
+from .error_pairs import chunk_pairs, distinct_sigmas, group_boxes
 
 SPACINGS = (1, 2, 4, 8)
 STEP = 1.0  # a ray step of one lattice cell resolves the field: the lattice follows the Gaussians' scale
@@ -76,27 +76,6 @@ def _fill_keys(lo, hi, start, keys):
                     n += 1
 
 
-@parallel_njit(cache=True)
-def _group_boxes(origins, gstart, offsets, sigmas, o, s, k):
-    """Per group, the cells (index >> 3) of the lattice its Gaussians' k-sigma boxes span (lo,
-    hi: int64 (groups, 3); lo > hi for an empty group), centres and sigmas in lattice units as
-    _geometry makes them (the same bits)."""
-    n = gstart.shape[0] - 1
-    lo = np.empty((n, 3), np.int64)
-    hi = np.empty((n, 3), np.int64)
-    for i in prange(n):
-        for a in range(3):
-            lo[i, a] = np.iinfo(np.int64).max
-            hi[i, a] = np.iinfo(np.int64).min
-        for g in range(gstart[i], gstart[i + 1]):
-            for a in range(3):
-                c = (np.float64(origins[i, a]) + np.float64(offsets[g, a]) - o) / s
-                r = k * (np.float64(sigmas[g, a]) / s)
-                lo[i, a] = min(lo[i, a], np.int64(np.ceil(c - r)) >> 3)
-                hi[i, a] = max(hi[i, a], np.int64(np.floor(c + r)) >> 3)
-    return lo, hi
-
-
 def _box_keys(lo, hi, dense=DENSE_CELLS):
     """The sorted keys of the cells in the union of the boxes [lo, hi] (int64 (n, 3)): marked in
     a dense array over their common box where it is small (no sort), else listed and
@@ -142,7 +121,7 @@ def _cells(gset, s, k):
     dropped."""
     gstart = np.asarray(gset.group_start, np.int64)
     origins = np.asarray(gset.group_origins).reshape(-1, 3)
-    lo, hi = _group_boxes(origins, gstart, np.asarray(gset.offsets), np.asarray(gset.sigmas),
+    lo, hi = group_boxes(origins, gstart, np.asarray(gset.offsets), np.asarray(gset.sigmas),
                           (s - 1) / 2.0, float(s), k)
     full = np.diff(gstart) > 0
     first, end, lo, hi = gstart[:-1][full], gstart[1:][full], lo[full], hi[full]
