@@ -56,7 +56,10 @@ class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
                               description="Sample step of the field and reference modes, in voxels "
                                           "(splat mode: in cells of its lattice)")
     tau_max: FloatProperty(name="Max Optical Depth", default=0.1, min=1e-4, max=10.0, update=_tag,
-                           description="Particles mode: subdivide overlapping segments until this optical depth")
+                           description="Particles mode: overlapping Gaussians of different colours are "
+                                       "mixed over stretches of at most this optical depth x colour "
+                                       "spread. Lower is more exact, higher is faster (0.3: about 12% "
+                                       "faster, under one 8-bit step from converged)")
     level_set_color: EnumProperty(
         name="Level Set Colour",
         description="How level-set surfaces are coloured",
