@@ -15,7 +15,7 @@ import numpy as np
 from ..jit import njit, parallel_njit, prange
 from ..lod.levelset import SURFACE_LEVEL
 from ._cpu_chords import NF, OVERFLOW
-from ._cpu_fog import reference_fog
+from ._cpu_fog import FOG_CHUNK, reference_fog
 from ._cpu_gauss import NB, trace_gauss, trace_tiles
 from ._cpu_math import (
     BG_DEPTH,
@@ -104,7 +104,7 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     if (one and mode == Mode.REFERENCE and objs.kind[0] == 0 and objs.ctf[0] < 0 and objs.lit[0] == 0
             and xfer.par[tf, 2] < 0.5):  # one fog volume, Emission, linear transfer function
         reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
-                      accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear)
+                      accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear, scr.fog)
         return
     iv_ta, iv_tb, srt, act_iv = scr.iv_ta, scr.iv_tb, scr.srt, scr.act_iv
     cov_obj, cov_cell = scr.cov_obj, scr.cov_cell
@@ -338,7 +338,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
                   np.empty(n_obj, np.int64),
                   np.empty(5), np.empty(6), np.empty(6), np.empty(NST), np.empty(6, np.int64),
                   np.empty(5), np.empty(NB, np.int64), np.empty((16, NB)), np.empty((n_obj, 5)),
-                  np.empty(6), np.empty((n_obj, 3)), np.empty(n_obj))
+                  np.empty(6), np.empty((n_obj, 3)), np.empty(n_obj), np.empty(FOG_CHUNK))
     cap = 256
     hits = ray_scratch(cap)
     out.segs[jr0:jr0 + nr] = 0.0

@@ -58,11 +58,11 @@ Output = namedtuple("Output", "rgba depth value segs")
 # covering leaves (paper, reference), the ray per object (index space) and its clip interval, the
 # walk's last cell per object, per-object sample sums, one sample and its sums, colour bounds,
 # the ray state, the sweep state, a block of tile candidates and their tests, surfaces' previous
-# sample per object, the world ray (origin, direction), lit volumes' field gradient per object
-# and the colour grids' mixture per object.
+# sample per object, the world ray (origin, direction), lit volumes' field gradient per object,
+# the colour grids' mixture per object and the one-fog sampler's chunk of values (_cpu_fog).
 Scratch = namedtuple("Scratch", "iv_ta iv_tb iv_obj iv_cell srt bnd act_iv cov_obj cov_cell ro rd "
                                 "rclip lastc svals sact samp acc cb st qs fs cand blk sprev wr sgrad "
-                                "cvals")
+                                "cvals fog")
 # Per-ray hits (particles, field), grown on demand: records, Gaussian ids, the entry queue (times,
 # keys, hits), the active set (field; particles: the members carried over), the members.
 Hits = namedtuple("Hits", "rec hid ev_t ev_k ev_h act mem")
