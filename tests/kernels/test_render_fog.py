@@ -1,9 +1,10 @@
 """Reference mode's one-fog-volume loop (_cpu_fog) against the general piece sampler it stands in
 for, and its inline absorption against expm1."""
 import numpy as np
+import pytest
 
 from kernels.render import Camera, RenderObject, RenderScene, TransferFunction, get_device
-from kernels.render._cpu_fog import absorbed
+from kernels.render._cpu_fog import FOG_CHUNK, absorbed
 from kernels.render.synthetic import grid_from_dense
 
 
@@ -22,17 +23,20 @@ def blob(shape=(24, 20, 16), seed=3):
     return grid_from_dense(d, (0, 0, 0))
 
 
-def test_one_fog_volume_equals_the_general_sampler():
+@pytest.mark.parametrize("step", [0.37, 0.09])
+def test_one_fog_volume_equals_the_general_sampler(step):
     """A second object far outside the view sends the same rays through the general sampler
     (merged pieces, per-sample calls): same samples, same image to rounding, Depth and Value
-    passes included, for a step that leaves partial steps per leaf and early termination on."""
+    passes included, for a step that leaves partial steps per leaf and early termination on;
+    at 0.09 a leaf crossing of 3 voxels is more than FOG_CHUNK samples (several chunks)."""
+    assert 3.0 / 0.09 > FOG_CHUNK
     dev = get_device("CPU")
     grid = blob()
     tf = TransferFunction.from_colormap("inferno", 0.0, 1.0, alpha="ramp", density=0.9)
     cam = Camera.frame_box([-1, -1, -1], [24, 20, 16], 48, 40, direction=(0.3, 1.0, 0.2))
     far = np.eye(4)
     far[:3, 3] = [1e5, 0, 0]
-    kw = dict(mode="reference", step=0.37, passes=("Depth", "Value"), transmittance_min=0.05)
+    kw = dict(mode="reference", step=step, passes=("Depth", "Value"), transmittance_min=0.05)
     one = dev.render(RenderScene([RenderObject(grid=grid)], **kw), cam, tf)
     segs = dev.stats["segments"]
     two = dev.render(RenderScene([RenderObject(grid=grid), RenderObject(grid=grid, matrix_world=far)],
