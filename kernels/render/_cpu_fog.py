@@ -15,7 +15,7 @@ import math
 
 from ..jit import njit
 from ._cpu_math import BG_DEPTH, DEPTH, RAD, SEGS, TMIN, TR, VSUM, VWT, _hot, _hot_fused
-from ._cpu_surface import trilinear
+from ._cpu_surface import BRICK_HI, trilinear
 
 FOG_CHUNK = 32  # samples whose values are taken before they are composited (Scratch.fog)
 
@@ -76,7 +76,7 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
             continue
         cxyz = cell_xyz[cid]
         B = bricks[cid]
-        # the interval's start in the leaf's brick (apron of one voxel: _cpu_surface.brick_xyz)
+        # the interval's start in the leaf's brick, its samples clamped as _cpu_surface.brick_xyz does
         bx = ox + p0 * dx - (cxyz[0] * 8 - 1)
         by = oy + p0 * dy - (cxyz[1] * 8 - 1)
         bz = oz + p0 * dz - (cxyz[2] * 8 - 1)
@@ -85,9 +85,9 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
             c1 = min(ns, c0 + FOG_CHUNK)
             for i in range(c0, c1):
                 u = (i + 0.5) * h
-                fx = min(max(bx + u * dx, 0.0), 8.999999)
-                fy = min(max(by + u * dy, 0.0), 8.999999)
-                fz = min(max(bz + u * dz, 0.0), 8.999999)
+                fx = min(max(bx + u * dx, 0.0), BRICK_HI)
+                fy = min(max(by + u * dy, 0.0), BRICK_HI)
+                fz = min(max(bz + u * dz, 0.0), BRICK_HI)
                 if clr != 0 and (clr >> ((min(int(fx) >> 1, 3) * 4 + min(int(fy) >> 1, 3)) * 4
                                          + min(int(fz) >> 1, 3))) & 1:
                     vals[i - c0] = math.nan  # a transparent sub-block (bricks.sub_max)

@@ -30,7 +30,7 @@ from ._cpu_math import (
     sample_color,
     whitened_chord,
 )
-from ._cpu_surface import brick_xyz, sdf_crossing, surface_hit, trilinear, trilinear_grad
+from ._cpu_surface import BRICK_HI, brick_xyz, sdf_crossing, surface_hit, trilinear, trilinear_grad
 
 
 @parallel_njit(**_jit)
@@ -83,9 +83,9 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
             fx = x - (cell_xyz[cid, 0] * 8 - 1)
             fy = y - (cell_xyz[cid, 1] * 8 - 1)
             fz = z - (cell_xyz[cid, 2] * 8 - 1)
-            fx = min(max(fx, 0.0), 8.999999)
-            fy = min(max(fy, 0.0), 8.999999)
-            fz = min(max(fz, 0.0), 8.999999)
+            fx = min(max(fx, 0.0), BRICK_HI)
+            fy = min(max(fy, 0.0), BRICK_HI)
+            fz = min(max(fz, 0.0), BRICK_HI)
             i0, j0, k0 = int(fx), int(fy), int(fz)
             ax, ay, az = fx - i0, fy - j0, fz - k0
             B = bricks[cid]

@@ -128,12 +128,15 @@ def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
     st[TR] = 0.0
 
 
+BRICK_HI = 8.999999  # a brick coordinate's upper clamp: its last trilinear cell, 8..9, kept open
+
+
 @njit(**_hot, inline="always")
 def brick_xyz(cxyz, x, y, z):
     """Index point -> coordinates in its leaf's 10^3 brick (apron of one voxel), clamped."""
-    fx = min(max(x - (cxyz[0] * 8 - 1), 0.0), 8.999999)
-    fy = min(max(y - (cxyz[1] * 8 - 1), 0.0), 8.999999)
-    fz = min(max(z - (cxyz[2] * 8 - 1), 0.0), 8.999999)
+    fx = min(max(x - (cxyz[0] * 8 - 1), 0.0), BRICK_HI)
+    fy = min(max(y - (cxyz[1] * 8 - 1), 0.0), BRICK_HI)
+    fz = min(max(z - (cxyz[2] * 8 - 1), 0.0), BRICK_HI)
     return fx, fy, fz
 
 
