@@ -73,7 +73,7 @@ def main(argv=None) -> int:
     wlo, whi = c[:, :3].min(0), c[:, :3].max(0)
     cam = Camera.frame_box(wlo, whi, a.size, a.size, direction=(0.35, 1.0, -0.3))
     tf = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=10.0 / np.linalg.norm(whi - wlo))
-    st = cg.color_values
+    st = cg.color_stats
     ctf = TransferFunction.from_colormap("inferno", st["min"], st["max"], alpha="constant")
     device, run = devices(a.device)
     print(f"{a.lod} LOD, {a.size}x{a.size}, {a.device.upper()} device: frame seconds coloured by "

@@ -61,7 +61,9 @@ def main(argv=None):
 
     bpy = start()
     importer = addon_module("gaussvdb_addon.io.importer")
-    final_render = addon_module("gaussvdb_addon.engine.final_render")
+    camera = addon_module("gaussvdb_addon.engine.camera")
+    devices = addon_module("gaussvdb_addon.engine.devices")
+    image_file = addon_module("gaussvdb_addon.engine.image_file")
     scene_sync = addon_module("gaussvdb_addon.engine.scene_sync")
     tmp = tempfile.mkdtemp(prefix="gaussvdb-bench-")  # the rendered frames: removed at exit
     atexit.register(shutil.rmtree, tmp, True)
@@ -81,13 +83,13 @@ def main(argv=None):
                 out = os.path.join(tmp, f"{mode}_{w}x{h}.png")
                 f12 = []
                 for _ in range(a.repeat):
-                    f12.append(final_render.render_scene_to_file(scene, out)["seconds_render"])
+                    f12.append(image_file.render_scene_to_file(scene, out)["seconds_render"])
                 dg = bpy.context.evaluated_depsgraph_get()
                 sync = scene_sync.SceneSync(viewport=False)
                 rscene = sync.sync(dg)
                 tf = sync.transfer_function(scene.gaussvdb)
-                cam = final_render.scene_camera(scene, dg, w, h)
-                dev = final_render.get_device()
+                cam = camera.scene_camera(scene, dg, w, h)
+                dev = devices.final_device()[0]
                 dev.sync(rscene)  # this sync's objects are new: not part of the frame's time
                 one = []
                 for _ in range(a.repeat):

@@ -85,7 +85,7 @@ def run(data, presets, weights, repeat, error=True, files=None, tolerances=(0.05
                     if high is None or high.get("nrmse") is None:
                         continue
                     th = dict(tolerance=high["nrmse"])
-                t_conv, gs = _best(lambda: convert_lod(g, p, weights, compute_error=False,
+                t_conv, gs = _best(lambda: convert_lod(g, p, weights=weights, compute_error=False,
                                                        thresholds=th).gset, repeat)
                 nb = encoded_nbytes(encode_compact(gs))
                 row = dict(file=os.path.basename(path), grid=name, cls=g.grid_class, lod=label,

@@ -4,8 +4,11 @@ its sequences, `gaussvdb convert` and `render`, the benchmarks).
     cgs = convert_file("smoke.vdb", lods=("low", "medium"), progress=print, cancel=None)
     cgs[0].lods[1].gset                       # the Medium GaussianSet of the first grid
     convert_file("fire.vdb", ["density"], color_grid="temperature")  # + gset.color_values
+    convert_file("smoke.vdb", options=ConvertOptions(lods=("adaptive",), tolerance=0.01))
 
-``convert_steps`` is the same as a generator that yields (fraction, text) before each step, so
+The options are one ``ConvertOptions`` (convert_options.py: every option and its default);
+``convert_file``'s keywords are a script's shorthand for one. ``convert_steps`` is the same as a
+generator that yields (fraction, text) before each step, so
 a modal operator can run one step per timer event; ``run`` drives one with a progress callback
 and a cancel test. Nothing here knows Blender: errors are ``ConversionError`` with a one-line
 message, and the kernels (numba) load on first use, not when this module is imported.
@@ -25,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import lod_names
+from .convert_options import DEFAULTS, ConvertOptions, options_of, split_names  # noqa: F401
 
 
 class ConversionError(Exception):
@@ -64,16 +68,6 @@ def default_grids(names):
         wanted = [n for n in MANTAFLOW_DEFAULT if n in names]
         return wanted, [(n, MANTAFLOW_LEFT_OUT) for n in names if n not in wanted]
     return None, []
-
-
-def split_names(text) -> list | None:
-    """'density, temperature' -> ['density', 'temperature']; '' -> None (the default grids)."""
-    if not text:
-        return None
-    if not isinstance(text, str):
-        return list(text) or None
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    return names or None
 
 
 def order_lods(lods) -> list:
@@ -121,8 +115,8 @@ class ConvertedGrid:
     active_voxels: int = 0
     leaves: int = 0
     tiles: int = 0  # active tiles
-    color_grid: str = ""  # the grid of the same file the Gaussians also carry (color_values)
-    color_values: dict = field(default_factory=dict)  # voxel_stats of that grid: its auto range
+    color_grid: str = ""  # the grid of the same file the Gaussians also carry (gset.color_values)
+    color_stats: dict = field(default_factory=dict)  # voxel_stats of that grid: its auto range
 
     @property
     def is_level_set(self) -> bool:
@@ -149,12 +143,14 @@ def leaf_box(grid):
 _WARM = set()  # (grid class, LOD, weights, band, error) converted once in this process
 
 
-def _warm_up(grid, lods, weights, level_set_band, compute_error) -> float:
+def _warm_up(grid, options) -> float:
     """Convert a few leaves of ``grid`` first, so that compiling (or loading) the kernels on
     first use is timed apart from the LODs' own conversion times; seconds it took."""
     from . import lod
 
-    todo = [n for n in lods if (grid.grid_class, n, weights, level_set_band, compute_error) not in _WARM]
+    o = options
+    keys = {n: (grid.grid_class, n, o.weights, o.level_set_band, o.compute_error) for n in o.lods}
+    todo = [n for n in o.lods if keys[n] not in _WARM]
     if not todo or grid.leaf_values is None or not len(grid.leaf_origins):
         return 0.0
     k = min(8, len(grid.leaf_origins))
@@ -167,29 +163,37 @@ def _warm_up(grid, lods, weights, level_set_band, compute_error) -> float:
         active_voxels=int(np.unpackbits(masks.view(np.uint8)).sum()))
     t0 = time.perf_counter()
     for name in todo:
-        gset = lod.build_lod(small, name, weights, level_set_band=level_set_band)
-        if compute_error:
+        gset = lod.build_lod(small, name, o.weights, level_set_band=o.level_set_band)
+        if o.compute_error:
             lod.field_error(small, gset)
-        _WARM.add((grid.grid_class, name, weights, level_set_band, compute_error))
+        _WARM.add(keys[name])
     return time.perf_counter() - t0
 
 
 # -- the steps -------------------------------------------------------------------------------------
-def convert_lod(grid, name, weights="field", level_set_band=True, compute_error=True,
-                thresholds=None) -> ConvertedLOD:
-    """One LOD of one grid, timed, with its field error (scalar figures) when asked."""
+def lod_thresholds(options, name) -> dict:
+    """The kernels.lod.DEFAULTS overrides LOD ``name`` is built with: the adaptive preset's
+    tolerance, then ``options.thresholds`` (they win)."""
+    th = dict(tolerance=options.tolerance) if name == "adaptive" else {}
+    th.update(options.thresholds)
+    return th
+
+
+def convert_lod(grid, name, options=None, **changes) -> ConvertedLOD:
+    """One LOD of one grid, timed, with its field error (scalar figures) when asked.
+    ``changes``: ConvertOptions fields over ``options``."""
     from .lod.build import finish
 
-    return finish(convert_lod_steps(grid, name, weights, level_set_band, compute_error, thresholds))
+    return finish(convert_lod_steps(grid, name, options_of(options, **changes)))
 
 
-def convert_lod_steps(grid, name, weights="field", level_set_band=True, compute_error=True,
-                      thresholds=None):
+def convert_lod_steps(grid, name, options=DEFAULTS):
     """convert_lod as a generator: yields the adaptive preset's (round, figures) after each
     round (kernels.lod.build.build_steps); its seconds leave out the time spent suspended."""
     from .lod.build import build_steps
 
-    steps = build_steps(grid, name, weights, level_set_band=level_set_band, **(thresholds or {}))
+    steps = build_steps(grid, name, options.weights, level_set_band=options.level_set_band,
+                        **lod_thresholds(options, name))
     seconds = 0.0
     while True:
         t0 = time.perf_counter()
@@ -204,7 +208,7 @@ def convert_lod_steps(grid, name, weights="field", level_set_band=True, compute_
             seconds += time.perf_counter() - t0
         yield item
     error, seconds_error = {}, 0.0
-    if compute_error:
+    if options.compute_error:
         t0 = time.perf_counter()
         try:
             error = measure_error(grid, gset)
@@ -295,30 +299,24 @@ def read_color_grid(filepath, name, vector_magnitude=False, max_bytes=None):
     return g
 
 
-def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
-                  vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None, *,
-                  tolerance=0.02, thresholds=None, index_limit=None, value_figures=True,
-                  color_grid=None):
+def convert_steps(filepath, options=DEFAULTS, skipped=None):
     """Generator: yields (fraction < 1, text) before each step; returns [ConvertedGrid].
 
-    ``grids``: names (a list or 'a, b'), or None for ``default_grids``. ``tolerance``: the
-    adaptive LOD's field NRMSE bound; ``thresholds``: kernels.lod.DEFAULTS overrides for every
-    LOD (they win over ``tolerance``). ``value_figures``: store voxel_stats (auto ranges).
-    ``color_grid``: another grid of the file whose value every Gaussian also carries
-    (``gset.color_values``, kernels.lod.second_grid), to colour by it (not level sets: they are
-    coloured by position).
+    ``options``: a ConvertOptions (which grids and LODs, how; convert_options.py says what each
+    field does). ``skipped`` collects (grid, reason) for grids left out.
     """
     from . import lod, vdb
 
-    lods = order_lods(lods)
-    if weights not in lod.WEIGHTS:
-        raise ConversionError(f"unknown weights {weights!r}; choose from {', '.join(lod.WEIGHTS)}")
+    o = options.replace(lods=tuple(order_lods(options.lods)))
+    if o.weights not in lod.WEIGHTS:
+        raise ConversionError(f"unknown weights {o.weights!r}; choose from {', '.join(lod.WEIGHTS)}")
     filepath = os.path.abspath(os.path.expanduser(os.fspath(filepath)))
     yield 0.0, f"reading {os.path.basename(filepath)}"
-    cgrid = read_color_grid(filepath, color_grid, vector_magnitude, max_bytes) if color_grid else None
-    chosen, seconds_read = read_grids(filepath, split_names(grids), vector_magnitude, max_bytes,
-                                      skipped, index_limit)
-    steps = len(chosen) * len(lods)
+    cgrid = (read_color_grid(filepath, o.color_grid, o.vector_magnitude, o.max_bytes)
+             if o.color_grid else None)
+    chosen, seconds_read = read_grids(filepath, None if o.grids is None else list(o.grids),
+                                      o.vector_magnitude, o.max_bytes, skipped, o.index_limit)
+    steps = len(chosen) * len(o.lods)
     out = []
     k = 0
     for g in chosen:
@@ -332,18 +330,16 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             warnings.warn(f"{os.path.basename(filepath)}: grid {g.name!r} has "
                           f"{cg.nonfinite_voxels:,} non-finite (NaN/Inf) voxels; they were made "
                           "inactive", RuntimeWarning, stacklevel=2)
-        if value_figures and g.grid_class != "level_set":  # level sets: coloured by position
+        if o.value_figures and g.grid_class != "level_set":  # level sets: coloured by position
             from .render.transfer import voxel_stats
 
             cg.values = voxel_stats(g)
-        cg.seconds_compile = _warm_up(g, lods, weights, level_set_band, compute_error)
-        for name in lods:
+        cg.seconds_compile = _warm_up(g, o)
+        for name in o.lods:
             yield 0.05 + 0.95 * k / steps, f"{g.name}: {lod_label(name)} LOD"
             k += 1
-            th = dict(tolerance=tolerance) if name == "adaptive" else {}
-            th.update(thresholds or {})
             cg.lods.append((yield from _rounds(
-                convert_lod_steps(g, name, weights, level_set_band, compute_error, th),
+                convert_lod_steps(g, name, o),
                 0.05 + 0.95 * (k - 1) / steps, 0.95 / steps, f"{g.name}: {lod_label(name)} LOD")))
             if cgrid is not None and g.grid_class != "level_set":  # level sets: coloured by position
                 add_color_values(cg.lods[-1], g, cgrid)
@@ -351,7 +347,7 @@ def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level
             from .render.transfer import voxel_stats
 
             cg.color_grid = cgrid.name
-            cg.color_values = dict(voxel_stats(cgrid), background=float(cgrid.background or 0.0))
+            cg.color_stats = dict(voxel_stats(cgrid), background=float(cgrid.background or 0.0))
         out.append(cg)
     return out
 
@@ -385,24 +381,26 @@ def run(steps, progress=None, cancel=None):
         steps.close()
 
 
-def convert_file(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
-                 vector_magnitude=False, max_bytes=None, compute_error=True, progress=None,
-                 cancel=None, skipped=None, **options) -> list:
-    """Read and convert one file; [ConvertedGrid]. ``options``: those of ``convert_steps``."""
-    return run(convert_steps(filepath, grids, lods, weights, level_set_band, vector_magnitude,
-                             max_bytes, compute_error, skipped, **options), progress, cancel)
+def convert_file(filepath, grids=None, lods=None, *, options=None, progress=None, cancel=None,
+                 skipped=None, **changes) -> list:
+    """Read and convert one file; [ConvertedGrid]. ``grids``, ``lods`` and ``changes``
+    (ConvertOptions fields) over ``options`` (default: the defaults)."""
+    return run(convert_steps(filepath, options_of(options, grids, lods, **changes), skipped),
+               progress, cancel)
 
 
-def convert_frame(path, grid, lod, weights="field", level_set_band=True, vector_magnitude=False,
-                  index_limit=None):
-    """One grid of one frame of a sequence at one LOD, no error measured: (ConvertedGrid, '');
-    (None, '') when the grid is absent or empty in this frame (nothing to draw, no error);
-    (None, why) when the frame cannot be converted."""
+def convert_frame(path, grid, lod, options=DEFAULTS):
+    """One grid of one frame of a sequence at one LOD, no error measured, with the object
+    settings and index limit of ``options`` (a frame is converted as the sequence's object
+    says, whatever else the options hold): (ConvertedGrid, ''); (None, '') when the grid is
+    absent or empty in this frame (nothing to draw, no error); (None, why) when the frame
+    cannot be converted."""
     from . import vdb
 
+    frame = ConvertOptions(grids=(grid,), lods=(lod,), compute_error=False,
+                           index_limit=options.index_limit, **options.object_settings())
     try:
-        converted = convert_file(path, [grid], [lod], weights, level_set_band, vector_magnitude,
-                                 compute_error=False, index_limit=index_limit)
+        converted = convert_file(path, options=frame)
     except ConversionError as err:
         try:  # an empty or absent grid is not an error, a file that cannot be read is
             topo = vdb.read_topology(path)

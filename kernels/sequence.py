@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .convert_options import DEFAULTS
+
 MODES = ("CLIP", "EXTEND", "REPEAT", "PING_PONG")
 CACHE_VERSION = 1
 _HASHES = re.compile(r"^(.*?)(#+)(.*)$")
@@ -232,12 +234,13 @@ def fingerprint(path, block=1 << 16) -> str:
     return f"{size}-{crc:08x}"
 
 
-def cache_name(frame_path, grid, lod, weights="field", level_set_band=True,
-               vector_magnitude=False) -> str:
-    """The cache file of one frame's grid at one LOD: '<frame stem>.<grid>.<lod>[.opts].npz'."""
+def cache_name(frame_path, grid, lod, options=DEFAULTS) -> str:
+    """The cache file of one frame's grid at one LOD converted with the ConvertOptions
+    ``options`` (the object settings they hold): '<frame stem>.<grid>.<lod>[.opts].npz'."""
     stem = os.path.splitext(os.path.basename(frame_path))[0]
-    opts = "".join(("" if weights == "field" else f".{weights}", "" if level_set_band else ".fullband",
-                    ".mag" if vector_magnitude else ""))
+    opts = "".join(("" if options.weights == DEFAULTS.weights else f".{options.weights}",
+                    "" if options.level_set_band else ".fullband",
+                    ".mag" if options.vector_magnitude else ""))
     safe = re.sub(r"[^A-Za-z0-9_.-]", "_", grid)
     return f"{stem}.{safe}.{lod}{opts}.npz"
 

@@ -93,13 +93,14 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         return self.invoke_popup(context)
 
     def _options(self):
-        from ..gaussvdb_addon.io import importer
+        """The dialog's settings as the ConvertOptions the import converts with."""
+        from ..kernels.convert_options import ConvertOptions
 
-        return dict(grids=importer.split_names(self.grids), lods=sorted(self.lods),
-                    weights=self.weights, level_set_band=self.level_set_band,
-                    vector_magnitude=self.vector_magnitude, compute_error=self.measure_error,
-                    tolerance=self.tolerance, sequence=self.use_sequence,
-                    color_grid=self.color_grid.strip() or None)
+        return ConvertOptions(grids=self.grids, lods=sorted(self.lods), weights=self.weights,
+                              level_set_band=self.level_set_band,
+                              vector_magnitude=self.vector_magnitude,
+                              compute_error=self.measure_error, tolerance=self.tolerance,
+                              color_grid=self.color_grid.strip())
 
     def execute(self, context):
         from ..gaussvdb_addon.engine import kernel_cache
@@ -116,9 +117,10 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         if big and context.window is not None and not bpy.app.background and not self.options.is_repeat:
             return self._start_modal(context, paths)
         try:
-            _objects, message = importer.import_files(context, paths, progress=context.window_manager,
-                                                     **self._options())
-        except importer.ImportError_ as err:
+            _objects, message = importer.import_files(context, paths, options=self._options(),
+                                                      sequence=self.use_sequence,
+                                                      progress=context.window_manager)
+        except importer.VDBImportError as err:
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}
         self.report({"INFO"}, message)
@@ -128,15 +130,9 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
     def _start_modal(self, context, paths):
         from ..gaussvdb_addon.io import importer
 
-        opts = self._options()
-        opts.pop("sequence")
+        self._convert_options = self._options()
         self._skipped = []
-        self._jobs = [importer.convert_steps(p, opts["grids"], opts["lods"], opts["weights"],
-                                             opts["level_set_band"], opts["vector_magnitude"],
-                                             None, opts["compute_error"], self._skipped,
-                                             tolerance=opts["tolerance"],
-                                             color_grid=opts["color_grid"])
-                      for p in paths]
+        self._jobs = [importer.convert_steps(p, self._convert_options, self._skipped) for p in paths]
         self._done = []
         self._npaths = len(paths)
         self._t0 = time.perf_counter()
@@ -184,11 +180,9 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             self._stop_modal(context)
             converted = [cg for part in self._done for cg in part]
             t1 = time.perf_counter()
-            objs = importer.build_objects(converted, None,
-                                          {k: v for k, v in self._options().items()
-                                           if k in ("weights", "level_set_band", "vector_magnitude")})
+            objs = importer.build_objects(converted, None, self._convert_options)
             t2 = time.perf_counter()
-        except importer.ImportError_ as err:
+        except importer.VDBImportError as err:
             self._stop_modal(context)
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}

@@ -21,7 +21,7 @@ class GAUSSVDB_OT_reload(bpy.types.Operator):
         obj = context.object
         try:
             importer.reload_object(obj, progress=context.window_manager)
-        except importer.ImportError_ as err:
+        except importer.VDBImportError as err:
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}
         self.report({"INFO"}, "reloaded " + importer.status_message([obj]))

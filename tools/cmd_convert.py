@@ -59,27 +59,27 @@ def _progress(fraction, text):
         print(f"gaussvdb convert: {text}", file=sys.stderr, flush=True)
 
 
-def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=True, error=True,
-            out=None, vector_magnitude=False, color_grid=None, **thresholds) -> dict:
+def convert(path, grid, options, out=None) -> dict:
+    """One grid (``grid``, or the default one) of ``path`` at the one LOD of the ConvertOptions
+    ``options``: the JSON figures."""
     import cli_grids
     import numpy as np
 
     from kernels import pipeline
     from kernels.lod import encode_compact, encoded_nbytes, paper_model_bytes
 
+    (lod,), color_grid, error = options.lods, options.color_grid, options.compute_error
     t_start = started_seconds_ago()
     t0 = time.perf_counter()
-    name = cli_grids.choose_grid(path, grid, vector_magnitude)
+    name = cli_grids.choose_grid(path, grid, options.vector_magnitude)
     if color_grid:
-        cli_grids.check_color_grid(path, color_grid, vector_magnitude)
+        cli_grids.check_color_grid(path, color_grid, options.vector_magnitude)
     t_topology = time.perf_counter() - t0
     t0 = time.perf_counter()
     with warnings.catch_warnings():  # NaN/Inf voxels: said in one line below
         warnings.filterwarnings("ignore", message=".*non-finite", category=RuntimeWarning)
         try:
-            cg = pipeline.convert_file(path, [name], [lod], weights, level_set_band, vector_magnitude,
-                                       compute_error=error, thresholds=thresholds,
-                                       value_figures=False, color_grid=color_grid,
+            cg = pipeline.convert_file(path, options=options.replace(grids=(name,)),
                                        progress=_progress if sys.stderr.isatty() else None)[0]
         except pipeline.ConversionError as err:
             raise cli_errors.InputError(str(err)) from err
@@ -103,7 +103,7 @@ def convert(path, grid=None, lod="medium", weights="field", *, level_set_band=Tr
     seconds_convert = cl.seconds + cl.seconds_error + t_encode
     res = {
         "file": os.path.basename(path), "grid": cg.name, "class": cg.grid_class, "lod": lod,
-        "weights": weights, "active_voxels": cg.active_voxels, "leaves": cg.leaves,
+        "weights": options.weights, "active_voxels": cg.active_voxels, "leaves": cg.leaves,
         "tiles": cg.tiles, "gaussians": gs.count,
         "spheres": gs.n_spheres, "ellipsoids": gs.n_ellipsoids, "bytes": nbytes,
         "bytes_per_gaussian": nbytes / gs.count if gs.count else 0.0,
@@ -159,10 +159,10 @@ def finish_timing(res):
     return res
 
 
-def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magnitude=False,
-                     level_set_band=True) -> dict:
+def convert_sequence(pattern, frames, grid, lod, cache_dir, options) -> dict:
     """Every frame of a sequence into the add-on's disk cache (kernels.sequence.write_frame),
-    each frame converted as the add-on converts one (kernels.pipeline.convert_frame)."""
+    each frame converted as the add-on converts one (kernels.pipeline.convert_frame) with the
+    object settings of the ConvertOptions ``options``."""
     import cli_grids
 
     from kernels import pipeline
@@ -181,7 +181,7 @@ def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magn
     name, last = None, None
     for n in present:  # the grid: named, or the default one of the first frame with one
         try:
-            name = cli_grids.choose_grid(pat.path(n), grid, vector_magnitude)
+            name = cli_grids.choose_grid(pat.path(n), grid, options.vector_magnitude)
             break
         except (cli_errors.InputError, ValueError) as err:
             last = err
@@ -195,7 +195,7 @@ def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magn
         t0 = time.perf_counter()
         with warnings.catch_warnings():  # NaN/Inf voxels made inactive, as the add-on does
             warnings.filterwarnings("ignore", message=".*non-finite", category=RuntimeWarning)
-            cg, why = pipeline.convert_frame(path, name, lod, weights, level_set_band, vector_magnitude)
+            cg, why = pipeline.convert_frame(path, name, lod, options)
         if why:
             msg = f"frame {n}: {why}"
             errors.append(msg)
@@ -205,21 +205,22 @@ def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magn
             continue
         gs = cg.lods[0].gset if cg is not None else None
         values = (cg.values or None) if cg is not None else None
-        out = os.path.join(cache_dir, seq.cache_name(path, name, lod, weights, level_set_band,
-                                                     vector_magnitude))
+        out = os.path.join(cache_dir, seq.cache_name(path, name, lod, options))
         item.update(seconds=time.perf_counter() - t0, gaussians=gs.count if gs is not None else 0,
                     cache_bytes=seq.write_frame(out, gs, values, path, name, lod),
                     cache_file=os.path.basename(out))
         items.append(item)
     done = [i for i in items if "cache_bytes" in i]
     return {"pattern": pat.path(0).replace(pat.name(0), pat.text), "grid": name, "lod": lod,
-            "weights": weights, "cache_dir": os.path.abspath(cache_dir), "frames": items,
+            "weights": options.weights, "cache_dir": os.path.abspath(cache_dir), "frames": items,
             "seconds_total": time.perf_counter() - t_all,
             "cache_bytes": sum(i["cache_bytes"] for i in done),
             "vdb_bytes": sum(i["vdb_bytes"] for i in done), "errors": errors}
 
 
 def main(argv: list[str]) -> int:
+    from kernels import lod_names
+    from kernels.convert_options import ConvertOptions
     from kernels.lod import DEFAULTS, PRESETS, WEIGHTS
 
     ap = cli_errors.ArgumentParser(prog="gaussvdb convert", description=__doc__.split("\n\n")[1])
@@ -230,8 +231,8 @@ def main(argv: list[str]) -> int:
                          "a Mantaflow cache: density)")
     ap.add_argument("--vector-magnitude", action="store_true",
                     help="vec3 grids (velocity) count as their magnitude, as in the importer")
-    ap.add_argument("--lod", choices=PRESETS, default="medium")
-    ap.add_argument("--weights", choices=WEIGHTS, default="field")
+    ap.add_argument("--lod", choices=PRESETS, default=lod_names.DEFAULT)
+    ap.add_argument("--weights", choices=WEIGHTS, default=WEIGHTS[0])
     ap.add_argument("--out", help="write the compact encoding to this .npz")
     ap.add_argument("--color-grid", metavar="NAME",
                     help="also the value of this other grid at every Gaussian (stored in --out "
@@ -251,6 +252,9 @@ def main(argv: list[str]) -> int:
         import numba
         numba.set_num_threads(a.threads)
     th = {k: getattr(a, k) for k in DEFAULTS if getattr(a, k) is not None}
+    opts = ConvertOptions(lods=(a.lod,), weights=a.weights, level_set_band=not a.no_band,
+                          vector_magnitude=a.vector_magnitude, compute_error=not a.no_error,
+                          thresholds=th, color_grid=a.color_grid, value_figures=False)
     if a.frames or a.cache_dir or "#" in os.path.basename(a.file):
         from kernels import sequence as seq
 
@@ -267,13 +271,10 @@ def main(argv: list[str]) -> int:
             frames = seq.parse_frames(a.frames) if a.frames else None
         except ValueError as err:
             raise cli_errors.UsageError(f"--frames: {err}", "gaussvdb convert") from None
-        res = convert_sequence(a.file, frames, a.grid, a.lod, a.weights, a.cache_dir,
-                               a.vector_magnitude, not a.no_band)
+        res = convert_sequence(a.file, frames, a.grid, a.lod, a.cache_dir, opts)
         print(json.dumps(res) if a.json else json.dumps(res, indent=2))
         return 1 if res["errors"] else 0
-    res = convert(a.file, a.grid, a.lod, a.weights, level_set_band=not a.no_band,
-                  error=not a.no_error, out=a.out, vector_magnitude=a.vector_magnitude,
-                  color_grid=a.color_grid, **th)
+    res = convert(a.file, a.grid, opts, out=a.out)
     res = finish_timing(res)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0

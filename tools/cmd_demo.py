@@ -51,7 +51,7 @@ def render_pngs(bpy, objs, args) -> list:
     import cmd_render
     from blender_session import addon_module
 
-    final_render = addon_module("gaussvdb_addon.engine.final_render")
+    image_file = addon_module("gaussvdb_addon.engine.image_file")
     obj = objs[0]
     for other in objs[1:]:
         other.hide_render = True
@@ -63,13 +63,13 @@ def render_pngs(bpy, objs, args) -> list:
     r = scene.render
     r.resolution_x, r.resolution_y = 16, 12
     t0 = time.perf_counter()
-    cmd_render.quiet_render(final_render, scene, os.path.join(os.path.abspath(args.out), "warmup.png"))
+    cmd_render.quiet_render(image_file, scene, os.path.join(os.path.abspath(args.out), "warmup.png"))
     paths = [f"(render warm-up {time.perf_counter() - t0:.2f} s: kernels loaded or compiled)"]
     r.resolution_x, r.resolution_y = width, height
     for name in addon_module("gaussvdb_addon.io.schema").lod_names(obj):
         obj.gaussvdb.render_lod = name
         path = os.path.join(os.path.abspath(args.out), f"{obj.gaussvdb.grid_name}_{name}.png")
-        stats = cmd_render.quiet_render(final_render, scene, path)
+        stats = cmd_render.quiet_render(image_file, scene, path)
         paths.append(f"{path} ({stats.get('gaussians', 0):,} Gaussians, "
                      f"{stats.get('seconds_render', 0.0):.2f} s)")
     return paths
@@ -84,18 +84,18 @@ def run(args) -> dict:
     lod = addon_module("kernels.lod")
     bpy.ops.wm.read_homefile(use_empty=True)
     path = os.path.abspath(args.file)
-    grids = importer.split_names(args.grids)
+    opts = importer.ConvertOptions(grids=args.grids, weights=args.weights)
     try:
         t0 = time.perf_counter()  # warm-up: numba loads (or, on a first run, compiles) its kernels
-        importer.convert_file(path, grids=grids or None, lods=("low",), weights=args.weights)
+        importer.convert_file(path, options=opts.replace(lods=("low",)))
         warmup = time.perf_counter() - t0
         t0 = time.perf_counter()
         skipped = []
         fixed = tuple(p for p in lod.PRESETS if p != "adaptive")
-        objs = importer.import_vdb(path, grids=grids, lods=fixed, weights=args.weights,
+        objs = importer.import_vdb(path, options=opts.replace(lods=fixed),
                                    collection=bpy.context.scene.collection, skipped=skipped)
         total = time.perf_counter() - t0
-    except importer.ImportError_ as err:
+    except importer.VDBImportError as err:
         raise cli_errors.InputError(f"{args.file}: {err}") from err
     rows = []
     for obj in objs:

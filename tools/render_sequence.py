@@ -17,6 +17,7 @@ import time
 
 import cli_errors
 from cli_errors import InputError, UsageError
+from render_setup import build_scene, check_format, convert_options, quiet_render
 
 
 def frames_of(args):
@@ -79,7 +80,7 @@ def sequence_box(obj):
     return wc[:, :3].min(0), wc[:, :3].max(0)
 
 
-def render(args, build_scene, quiet_render) -> dict:
+def render(args) -> dict:
     from blender_session import addon_module, start
 
     pat, frames, inside = frames_of(args)
@@ -87,18 +88,15 @@ def render(args, build_scene, quiet_render) -> dict:
     bpy = start()
     importer = addon_module("gaussvdb_addon.io.importer")
     sequence_import = addon_module("gaussvdb_addon.io.sequence_import")
-    final_render = addon_module("gaussvdb_addon.engine.final_render")
-    import cmd_render
-
-    cmd_render.check_format(final_render, args.out)
+    image_file = addon_module("gaussvdb_addon.engine.image_file")
+    check_format(image_file, args.out)
     bpy.ops.wm.read_homefile(use_empty=True)
     t0 = time.perf_counter()
     try:
         objs = sequence_import.import_sequence(
-            pat.path(inside[0]), [inside[0], inside[-1]], grids=[grid], lods=(args.lod,),
-            weights=args.weights, vector_magnitude=args.vector_magnitude,
-            collection=bpy.context.scene.collection, compute_error=False)
-    except importer.ImportError_ as err:
+            pat.path(inside[0]), [inside[0], inside[-1]], options=convert_options(args, grid),
+            collection=bpy.context.scene.collection)
+    except importer.VDBImportError as err:
         raise InputError(f"{args.file}: {err}") from err
     seconds_import = time.perf_counter() - t0
     vol = objs[0].gaussvdb.source_volume
@@ -114,7 +112,7 @@ def render(args, build_scene, quiet_render) -> dict:
         out = os.path.abspath(out_path(args.out, f))
         os.makedirs(os.path.dirname(out), exist_ok=True)
         t1 = time.perf_counter()
-        stats = quiet_render(final_render, scene, out)
+        stats = quiet_render(image_file, scene, out)
         item = {"frame": f, "out": out, "seconds": time.perf_counter() - t1,
                 "seconds_sync": stats["seconds_sync"], "seconds_render": stats["seconds_render"],
                 "gaussians": stats["gaussians"]}

@@ -1,4 +1,5 @@
-"""F12 / animation renders of the GAUSSVDB engine, and ``render_scene_to_file`` for the CLI and demo.
+"""F12 / animation renders of the GAUSSVDB engine (the render to a file is image_file.py's; the
+device is devices.py's, the camera camera.py's).
 
 The frame's set-up is done once (``device.begin_frame``), then the image (or the render border's
 region, as Cycles does: Blender pads it to the full size unless the result is cropped) is drawn in
@@ -11,71 +12,34 @@ is reported with ``report`` and ``error_set``: ``bpy.ops.render.render`` then ra
 with the message and ``blender -b`` exits non-zero.
 """
 
-import math
-import sys
 import time
 import traceback
 
 import bpy
 import numpy as np
 
-from ...kernels.render import Camera
+from . import camera as cameras
+from . import devices
 
 TARGET_BAND_SECONDS = 0.15
 # Partial results shown in the Image Editor this often; headless renders (blender -b, the CLI)
 # show none, so they skip these full-frame copies (8 M floats at 1920x1080).
 PROGRESSIVE_SECONDS = 0.5
-LAST_STATS = {}  # figures of the last final render in this process (the CLI prints them)
-_DEVICE = {}  # one CPU device per process: numba kernels compile once, acceleration is reused
-LOAD_SECONDS = [0.0]  # loading the kernels when the device was made (once per process)
+# The figures of the last final render in this process. Blender calls the engine and takes no
+# return value, so this record is how the caller of bpy.ops.render.render reads them
+# (image_file.render_scene_to_file returns a copy).
+LAST_STATS = {}
 
 
 class RenderCancelled(Exception):
     pass
 
 
-# -- camera ---------------------------------------------------------------------------------------
+# -- image size and region ------------------------------------------------------------------------
 def render_size(scene):
     r = scene.render
     f = r.resolution_percentage / 100.0
     return max(1, int(r.resolution_x * f)), max(1, int(r.resolution_y * f))
-
-
-def camera_from_object(cam_obj, width, height, matrix_world=None, pixel_aspect=1.0):
-    """Kernel Camera for a Blender camera object at an image size (Blender's view-plane rules:
-    sensor fit AUTO spans the larger image side, HORIZONTAL the width, VERTICAL the height, sides
-    measured with the pixel aspect (a pixel's height over its width); shifts are in units of the
-    fitted side; clip start/end along the view axis)."""
-    cam = cam_obj.data
-    if cam.type not in ("PERSP", "ORTHO"):
-        raise ValueError(f"camera type {cam.type} is not supported (perspective and orthographic are)")
-    mw = np.array(matrix_world if matrix_world is not None else cam_obj.matrix_world, np.float64)
-    tall = height * pixel_aspect
-    big = max(width, tall)
-    fit = cam.sensor_fit
-    if fit == "AUTO":
-        fitted = big
-    elif fit == "HORIZONTAL":
-        fitted = width
-    else:
-        fitted = tall
-    scale = big / fitted  # fitted-side units -> larger-side units
-    kw = dict(shift_x=cam.shift_x / scale, shift_y=cam.shift_y / scale, pixel_aspect=pixel_aspect,
-              clip_start=max(0.0, cam.clip_start), clip_end=max(cam.clip_start, cam.clip_end, 0.0))
-    if cam.type == "ORTHO":
-        return Camera(mw, width, height, "ortho", ortho_scale=cam.ortho_scale * scale, **kw)
-    sensor = cam.sensor_height if fit == "VERTICAL" else cam.sensor_width
-    half = 0.5 * sensor / cam.lens * scale
-    return Camera(mw, width, height, "persp", fov_x=2.0 * math.atan(half), **kw)
-
-
-def scene_camera(scene, depsgraph, width, height):
-    cam = scene.camera
-    if cam is None:
-        raise ValueError("the scene has no camera")
-    ev = cam.evaluated_get(depsgraph) if depsgraph is not None else cam
-    r = scene.render
-    return camera_from_object(ev, width, height, pixel_aspect=r.pixel_aspect_y / r.pixel_aspect_x)
 
 
 def render_region(scene, width, height):
@@ -115,43 +79,6 @@ def register_passes(engine, scene, renderlayer):
         engine.register_pass(scene, renderlayer, name, ch, chid, kind)
 
 
-def new_device(name="CPU"):
-    """A CPU (or GPU) device (its kernels cached where registration pointed kernels.cachedir)."""
-    from ...kernels.render import get_device as kernel_device
-
-    if name == "GPU":
-        from ..gpu import device  # noqa: F401  (registers the GPU device)
-    return kernel_device(name)
-
-
-def get_device(name="CPU"):
-    """The process-wide device of final renders (acceleration reused across frames); its kernels
-    are loaded when it is made (LOAD_SECONDS), apart from any frame's timings."""
-    dev = _DEVICE.get(name)
-    if dev is None:
-        dev = new_device(name)
-        LOAD_SECONDS[0] = dev.load_kernels()
-        _DEVICE[name] = dev
-    return dev
-
-
-def chosen_device(engine, scene):
-    """The device name this render uses: the scene's choice, or CPU with a one-line warning
-    when the GPU device cannot run here (gpu_choice)."""
-    if scene.gaussvdb.device != "GPU":
-        return "CPU"
-    from . import gpu_choice
-
-    ok, why = gpu_choice.usable()
-    if ok:
-        return "GPU"
-    msg = f"GaussVDB: the GPU device is not available ({why}); rendering on the CPU"
-    if not bpy.app.background:  # (in background mode the report prints itself)
-        print(msg, file=sys.stderr)
-    engine.report({"WARNING"}, msg)
-    return "CPU"
-
-
 def announce_compile(engine):
     """Console and status bar say so before the kernels compile for the first time."""
     from . import kernel_cache
@@ -176,7 +103,7 @@ def render(engine, depsgraph):
 
 
 def _render(engine, depsgraph):
-    name = chosen_device(engine, depsgraph.scene)
+    name = devices.chosen_device(engine, depsgraph.scene)
     if name == "GPU":
         from ..gpu import context
 
@@ -189,16 +116,14 @@ def _render(engine, depsgraph):
 def _render_on(engine, depsgraph, name):
     from . import legend_overlay, scene_sync
 
-    fresh = name not in _DEVICE
-    if fresh:  # the device loads (on first use compiles) every render kernel when it is made
+    if not devices.is_loaded(name):  # the device loads (on first use compiles) every kernel
         engine.update_stats("", "GaussVDB | loading the kernels")
         announce_compile(engine)
-    device = get_device(name)
-    t_compile = LOAD_SECONDS[0] if fresh else 0.0
+    device, t_compile = devices.final_device(name)
     t0 = time.perf_counter()
     scene = depsgraph.scene
     width, height = render_size(scene)
-    camera = scene_camera(scene, depsgraph, width, height)
+    camera = cameras.scene_camera(scene, depsgraph, width, height)
     region = render_region(scene, width, height)
     sync = scene_sync.SceneSync(viewport=False)
     rscene = sync.sync(depsgraph)
@@ -309,53 +234,3 @@ def _band_end(row, band, end, align):
     """The end of the band from row: on a multiple of align unless at the end."""
     r1 = (row + band) // align * align
     return min(end, r1 if r1 > row else row + band)
-
-
-# -- plain entry points (CLI, demo) ----------------------------------------------------------------
-def set_exact_colors(scene):
-    """Standard view transform, no look, exposure 0, gamma 1, no dither: colormaps come out
-    exact in 8-bit files (AgX, the default, maps linear 1.0 to 0.859; the default dither adds
-    +-1 noise to 8-bit output)."""
-    scene.render.dither_intensity = 0.0
-    vs = scene.view_settings
-    scene.display_settings.display_device = "sRGB"
-    vs.view_transform = "Standard"
-    vs.look = "None"
-    vs.exposure = 0.0
-    vs.gamma = 1.0
-    vs.use_curve_mapping = False
-
-
-FORMATS = {".png": "PNG", ".exr": "OPEN_EXR", ".jpg": "JPEG", ".jpeg": "JPEG", ".tif": "TIFF",
-           ".tiff": "TIFF"}
-
-
-def render_scene_to_file(scene, path, *, exact_colors=True, color_depth=None):
-    """Render ``scene`` with the GAUSSVDB engine and write ``path`` (format from the extension).
-    Returns the render's figures (LAST_STATS); raises RuntimeError with the engine's message."""
-    import os
-
-    import bpy
-
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in FORMATS:
-        raise ValueError(f"unsupported image type {ext!r}; use one of {', '.join(sorted(FORMATS))}")
-    scene.render.engine = "GAUSSVDB"
-    img = scene.render.image_settings
-    if hasattr(img, "media_type"):  # Blender 5.0: pick plain images before the file format
-        img.media_type = "IMAGE"
-    img.file_format = FORMATS[ext]
-    img.color_mode = "RGBA" if FORMATS[ext] in ("PNG", "OPEN_EXR", "TIFF") else "RGB"
-    if color_depth:
-        img.color_depth = str(color_depth)
-    elif FORMATS[ext] == "OPEN_EXR":
-        img.color_depth = "32"
-    if exact_colors:
-        set_exact_colors(scene)
-    scene.render.filepath = os.path.abspath(path)
-    scene.render.use_file_extension = False
-    LAST_STATS.clear()
-    bpy.ops.render.render(write_still=True, scene=scene.name)
-    if "error" in LAST_STATS:
-        raise RuntimeError(LAST_STATS["error"])
-    return dict(LAST_STATS)

@@ -3,7 +3,8 @@ GPU context (bl_use_gpu_context, read when the class registers) only where the p
 be had: always in the UI; in background mode (blender -b, the bpy module) once the GPU device is
 chosen (the setting's update, a file loaded with it, the CLI) and the probe passed, by
 registering the engine class again with the flag on. A machine without EGL/GL never asks, so
-Blender never aborts there; the GPU choice then falls back to the CPU device with a warning."""
+Blender never aborts there; the GPU choice then falls back to the CPU device with a warning
+(devices.chosen_device, which reads the flag from the engine it renders for)."""
 
 import bpy
 from bpy.app.handlers import persistent
@@ -32,15 +33,6 @@ def ensure():
         bpy.utils.unregister_class(cls)
         cls.bl_use_gpu_context = True
         bpy.utils.register_class(cls)
-    return ok, text
-
-
-def usable():
-    """(ok, text): whether a render now can run the GPU device (probe passed, engine has a
-    GPU context)."""
-    ok, text = probe.probe()
-    if ok and not engine_class().bl_use_gpu_context:
-        return False, "the render engine was registered without a GPU context"
     return ok, text
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...kernels import sequence as seq
+from ...kernels.convert_options import DEFAULTS
 
 MB = 1 << 20
 CACHE = seq.LRUCache(2048 * MB)  # converted frames; the budget follows scene.gaussvdb
@@ -108,11 +109,6 @@ def disk_cache_dir(scene):
     return os.path.abspath(bpy.path.abspath(text))
 
 
-def _options(st):
-    return dict(weights=st.weights_rule(), level_set_band=bool(st.level_set_band),
-                vector_magnitude=bool(st.vector_magnitude))
-
-
 def frame_at(obj, lod, scene, scene_frame=None) -> Frame:
     """The Frame ``obj`` (an original sequence object) shows at ``scene_frame`` (default: the
     scene's current frame) at ``lod``."""
@@ -133,7 +129,7 @@ def frame_at(obj, lod, scene, scene_frame=None) -> Frame:
     except OSError as err:
         out.error = f"{obj.name}: frame {f}: cannot read {os.path.basename(out.path)} ({err.strerror})"
         return out
-    key = (out.path, stat.st_mtime_ns, stat.st_size, st.grid_name, lod, *_options(st).values())
+    key = (out.path, stat.st_mtime_ns, stat.st_size, st.grid_name, lod, st.convert_options())
     hit = CACHE.get(key)
     if hit is None:
         hit = _load(obj, out.path, lod, scene)
@@ -157,15 +153,15 @@ def _load(obj, path, lod, scene):
     """(GaussianSet or None, value figures, index_to_world, error) of one frame: from the disk
     cache when it holds this file, else converted (and written there)."""
     st = obj.gaussvdb
-    opts = _options(st)
+    opts = st.convert_options()
     folder = disk_cache_dir(scene)
-    cache_file = os.path.join(folder, seq.cache_name(path, st.grid_name, lod, **opts)) if folder else ""
+    cache_file = os.path.join(folder, seq.cache_name(path, st.grid_name, lod, opts)) if folder else ""
     found = seq.read_frame(cache_file, path) if cache_file else None
     if found is not None:
         STATS["disk_hits"] += 1
         gset, values = found
         return gset, values, None if gset is None else np.asarray(gset.index_to_world), ""
-    gset, values, i2w, error, original = convert_frame(path, st.grid_name, lod, **opts)
+    gset, values, i2w, error, original = convert_frame(path, st.grid_name, lod, opts)
     if cache_file and not error:
         try:
             seq.write_frame(cache_file, original, values, path, st.grid_name, lod)
@@ -175,18 +171,18 @@ def _load(obj, path, lod, scene):
     return gset, values, i2w, error
 
 
-def convert_frame(path, grid, lod, weights="field", level_set_band=True, vector_magnitude=False):
-    """Convert one frame's grid at one LOD: (GaussianSet as an import of that file alone would
-    read it, value figures, index_to_world, error text, the converted set itself). A grid absent
-    or empty in this frame gives (None, None, None, '', None): nothing to draw, no error."""
+def convert_frame(path, grid, lod, options=DEFAULTS):
+    """Convert one frame's grid at one LOD with the ConvertOptions ``options`` (an object's:
+    ObjectSettings.convert_options): (GaussianSet as an import of that file alone would read
+    it, value figures, index_to_world, error text, the converted set itself). A grid absent or
+    empty in this frame gives (None, None, None, '', None): nothing to draw, no error."""
     from ...kernels import pipeline
-    from ..io import schema
+    from ..io import conversion, schema
     from . import kernel_cache
 
     kernel_cache.announce("vdb", "lod")
     t0 = time.perf_counter()
-    cg, error = pipeline.convert_frame(path, grid, lod, weights, level_set_band, vector_magnitude,
-                                       index_limit=schema.ORIGIN_LIMIT)
+    cg, error = pipeline.convert_frame(path, grid, lod, conversion.import_options(options))
     if cg is None:
         return None, None, None, error, None
     STATS["converted"] += 1

@@ -7,67 +7,20 @@ shader into a texture (again only when the view or scene changed) and draws it i
 view or scene changed, and draws the latest image with a few ``gpu`` calls. The worker renders
 at 1/8, 1/4, 1/2 and full resolution (the objects' Viewport LOD); while the view keeps changing
 only the 1/8 level is drawn, the finer levels follow once the view has rested ``REST_SECONDS``.
-Everything except drawing is plain Python, tested headless (``camera_from_matrices``,
-``ProgressiveSchedule``).
+Everything except drawing is plain Python, tested headless (``ProgressiveSchedule``; the
+camera conversion is camera.py's, shared with F12).
 """
 
-import dataclasses
-import math
 import threading
 import time
 
 import numpy as np
 
-from ...kernels.render import Camera
+from . import devices
+from .camera import camera_from_region, camera_key, scaled_camera
 
 LEVELS = (8, 4, 2, 1)  # downscale factors, coarse to fine
 REST_SECONDS = 0.15
-
-
-# -- camera from region matrices ------------------------------------------------------------------
-def camera_from_matrices(view_matrix, window_matrix, width, height, is_perspective=None):
-    """Kernel Camera equivalent to an OpenGL-style view (world -> view) and window (projection)
-    matrix pair for a width x height image: what Blender's viewport draws, in camera view (zoom
-    and offset included in the window matrix) or not. Orthographic cameras are placed on the
-    near clip plane (Blender's ortho viewport clips symmetrically around the view centre)."""
-    v = np.array(view_matrix, np.float64).reshape(4, 4)
-    p = np.array(window_matrix, np.float64).reshape(4, 4)
-    if is_perspective is None:
-        is_perspective = abs(p[3, 3]) < 0.5
-    cam_to_world = np.linalg.inv(v)
-    big = max(width, height)
-    ex = 2.0 / p[0, 0]  # image width on the plane z = -1 (perspective) or in view units (ortho)
-    if is_perspective:
-        cx, cy = p[0, 2] / p[0, 0], p[1, 2] / p[1, 1]  # image centre on that plane
-    else:
-        cx, cy = -p[0, 3] / p[0, 0], -p[1, 3] / p[1, 1]
-    # the kernel's plane: larger side spans `bigext`, the other side the same per pixel
-    bigext = ex * big / width  # (the height gives the same for square pixels)
-    sx, sy = cx / bigext, cy / bigext
-    if is_perspective:
-        return Camera(cam_to_world, width, height, "persp", fov_x=2.0 * math.atan(0.5 * bigext),
-                      shift_x=sx, shift_y=sy)
-    near = (p[2, 3] + 1.0) / p[2, 2]  # view-space z of the near plane is -near
-    m = cam_to_world.copy()
-    m[:3, 3] = (cam_to_world @ np.array([0.0, 0.0, -near, 1.0]))[:3]
-    return Camera(m, width, height, "ortho", ortho_scale=bigext, shift_x=sx, shift_y=sy)
-
-
-def camera_from_region(region, region_data):
-    return camera_from_matrices(region_data.view_matrix, region_data.window_matrix,
-                                region.width, region.height, bool(region_data.is_perspective))
-
-
-def camera_key(cam):
-    return (cam.packed().round(12).tobytes(), cam.width, cam.height)
-
-
-def scaled_camera(cam, factor):
-    """The same view at 1/factor resolution (at least one pixel). The low-resolution image is
-    stretched over the region; rounding moves its edges by less than one coarse pixel."""
-    w = max(1, int(math.ceil(cam.width / factor)))
-    h = max(1, int(math.ceil(cam.height / factor)))
-    return dataclasses.replace(cam, width=w, height=h)  # clip range and pixel aspect kept
 
 
 def draw_texture(tex, width, height, engine=None, scene=None):
@@ -237,9 +190,7 @@ class ViewportSession:
         if self.sync.scene is None:
             self.sync.sync(depsgraph)
         if self.gpu is None:
-            from .final_render import new_device
-
-            self.gpu = [new_device("GPU"), None, None]
+            self.gpu = [devices.new_device("GPU"), None, None]
         dev = self.gpu[0]
         if self.gpu[1] != key:
             self.tf = self.sync.transfer_function(depsgraph.scene.gaussvdb)
@@ -285,10 +236,8 @@ class ViewportSession:
             return None
         _, rscene, cam, tf = job
         if self.device is None:
-            from .final_render import new_device
-
             # its own device: a final render may run on the main thread at the same time
-            self.device = new_device()
+            self.device = devices.new_device()
         c = scaled_camera(cam, factor)
         out = self.device.render(rscene, c, tf,
                                  cancel=lambda: self.stopping or self.schedule.generation != gen)

@@ -7,6 +7,7 @@ One object per ConvertedGrid: a PointCloud laid out as schema.py says, the objec
 
 import os
 
+from ...kernels.convert_options import DEFAULTS
 from ..properties import lod_figures
 from . import schema
 
@@ -85,9 +86,9 @@ def _settings_to_object(obj, cg, stats, options):
     st.grid_class = cg.grid_class
     st.value_type = cg.value_type
     st.lods = ",".join(cl.name for cl in cg.lods)
-    st.weight_rule = options["weights"]
-    st.level_set_band = bool(options["level_set_band"])
-    st.vector_magnitude = bool(options["vector_magnitude"])
+    st.weight_rule = options.weights
+    st.level_set_band = bool(options.level_set_band)
+    st.vector_magnitude = bool(options.vector_magnitude)
     st.index_to_world = schema.index_to_world_text(cg.index_to_world)
     st.leaf_box_min = [float(v) for v in cg.leaf_box[0]]
     st.leaf_box_max = [float(v) for v in cg.leaf_box[1]]
@@ -95,7 +96,7 @@ def _settings_to_object(obj, cg, stats, options):
     figures = {"lods": stats, "nonfinite_voxels": cg.nonfinite_voxels, "values": cg.values,
                "seconds_compile": cg.seconds_compile}
     if cg.color_grid:
-        figures["color_values"] = cg.color_values
+        figures["color_values"] = cg.color_stats  # (the key files hold)
     if cg.sequence:
         figures["sequence"] = cg.sequence["figures"]
     lod_figures.store(st, figures)
@@ -105,12 +106,13 @@ def _settings_to_object(obj, cg, stats, options):
     st.render_lod = names[-1]
 
 
-def build_objects(converted, collection=None, options=None) -> list:
-    """Create one point-cloud object per ConvertedGrid; on any failure remove everything created."""
+def build_objects(converted, collection=None, options=DEFAULTS) -> list:
+    """Create one point-cloud object per ConvertedGrid (converted with the ConvertOptions
+    ``options``, whose object settings each object keeps); on any failure remove everything
+    created."""
     import bpy
     from mathutils import Matrix
 
-    options = {"weights": "field", "level_set_band": True, "vector_magnitude": False, **(options or {})}
     if collection is None:
         collection = bpy.context.view_layer.active_layer_collection.collection
     prepared = []

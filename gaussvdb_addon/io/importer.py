@@ -4,12 +4,15 @@ Scripts, the operator, the Reload button and the CLI all call these:
 
     objs = import_vdb("smoke.vdb", lods=("low", "medium"))       # -> list of Objects
     import_vdb("fire.vdb", ["density"], color_grid="temperature")  # coloured by temperature
+    import_vdb("smoke.vdb", options=ConvertOptions(lods=("adaptive",), tolerance=0.01))
     gset = gaussian_set_from_object(objs[0], "medium")            # -> kernels.lod.GaussianSet
 
+The options are one ``ConvertOptions`` (kernels/convert_options.py); the keywords of
+``import_vdb``, ``import_files`` and ``convert_file`` are a script's shorthand for its fields.
 Two phases, so an error or a cancel leaves nothing half-built: ``convert_file`` reads and converts
-everything (kernels.pipeline, no datablock), then ``build_objects`` (io/datablocks.py) creates the
-datablocks (and removes them again if creating them fails). The layout of an imported object is
-io/schema.py's.
+everything (io/conversion.py, kernels.pipeline, no datablock), then ``build_objects``
+(io/datablocks.py) creates the datablocks (and removes them again if creating them fails). The
+layout of an imported object is io/schema.py's.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import os
 
 import numpy as np
 
-from ...kernels import pipeline
+from ...kernels.convert_options import ConvertOptions, options_of  # noqa: F401  (scripting API)
 from ...kernels.pipeline import (  # noqa: F401  (the scripting API: importer.X)
     ConvertedGrid,
     ConvertedLOD,
@@ -29,6 +32,8 @@ from ...kernels.pipeline import (  # noqa: F401  (the scripting API: importer.X)
     split_names,
 )
 from ..properties import lod_figures
+from . import conversion, sequence_import
+from .conversion import ImportCancelled, VDBImportError, bpy_abspath, convert_steps  # noqa: F401
 from .datablocks import build_objects
 from .schema import (  # noqa: F401  (the scripting API: importer.X)
     gaussian_set_from_object,
@@ -36,9 +41,6 @@ from .schema import (  # noqa: F401  (the scripting API: importer.X)
     object_stats,
     stored_index_to_world,
 )
-
-ImportError_ = pipeline.ConversionError  # an import failed; nothing was created
-ImportCancelled = pipeline.ConversionCancelled
 
 
 def default_grids_hint(filepath) -> str:
@@ -76,17 +78,6 @@ def default_grids_hint(filepath) -> str:
 _HINTS = {}
 
 
-def bpy_abspath(path) -> str:
-    if not path:
-        return ""
-    try:
-        import bpy
-
-        return os.path.abspath(bpy.path.abspath(path))
-    except ImportError:
-        return os.path.abspath(path)
-
-
 def selected_paths(filepath, directory="", files=()) -> list:
     """The files chosen in the file browser (several when shift-selected), else ``filepath``."""
     names = [f.name for f in files if getattr(f, "name", "")] if files else []
@@ -95,99 +86,36 @@ def selected_paths(filepath, directory="", files=()) -> list:
     return [filepath] if filepath else []
 
 
-# -- phase 1: read and convert (no Blender data) ---------------------------------------------------
-def convert_steps(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
-                  vector_magnitude=False, max_bytes=None, compute_error=True, skipped=None, *,
-                  tolerance=0.02, color_grid=None):
-    """kernels.pipeline.convert_steps for an import: grids whose index coordinates float32
-    attributes cannot hold exactly are refused, and the last step creates the objects.
-    ``color_grid``: a grid of the same file whose value each Gaussian carries (gs_color)."""
-    from ..engine import kernel_cache
-
-    kernel_cache.announce("vdb", "lod")
-    from .schema import ORIGIN_LIMIT
-
-    out = yield from pipeline.convert_steps(filepath, grids, lods, weights, level_set_band,
-                                            vector_magnitude, max_bytes, compute_error, skipped,
-                                            tolerance=tolerance, index_limit=ORIGIN_LIMIT,
-                                            color_grid=color_grid or None)
-    yield 1.0, "creating objects"
-    return out
-
-
-
-class _Progress:
-    """Adapts a WindowManager (progress_begin/update/end) or a callable(fraction, text)."""
-
-    def __init__(self, target):
-        self.target = target
-        self.wm = target if hasattr(target, "progress_update") else None
-        if self.wm is not None:
-            try:
-                self.wm.progress_begin(0, 1000)
-            except Exception:  # noqa: BLE001 - no window (some headless contexts)
-                self.wm = None
-
-    def __call__(self, fraction, text):
-        if self.wm is not None:
-            try:
-                self.wm.progress_update(int(1000 * fraction))
-            except Exception:  # noqa: BLE001
-                pass
-        elif callable(self.target):
-            self.target(fraction, text)
-
-    def end(self):
-        if self.wm is not None:
-            try:
-                self.wm.progress_end()
-            except Exception:  # noqa: BLE001
-                pass
-
-
-def convert_file(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
-                 vector_magnitude=False, max_bytes=None, compute_error=True, progress=None,
-                 cancel=None, skipped=None, *, tolerance=0.02, color_grid=None) -> list:
-    """Read and convert one file (no Blender data is touched). Raises ImportError_/ImportCancelled."""
-    steps = convert_steps(filepath, grids, lods, weights, level_set_band, vector_magnitude,
-                          max_bytes, compute_error, skipped, tolerance=tolerance,
-                          color_grid=color_grid)
-    report = _Progress(progress) if progress is not None else None
-    try:
-        return pipeline.run(steps, report, cancel)
-    finally:
-        if report is not None:
-            report.end()
-
-
 # -- the entry points ------------------------------------------------------------------------------
-def import_vdb(filepath, grids=None, lods=("medium",), weights="field", level_set_band=True,
-               vector_magnitude=False, collection=None, progress=None, cancel=None, max_bytes=None,
-               compute_error=True, skipped=None, color_grid=None) -> list:
-    """Import the grids of one .vdb file; returns the new objects (one per grid). ``color_grid``:
-    another grid of the file that colours them (its value carried on every Gaussian); a name
-    the file does not hold raises ImportError_ naming the grid and the file."""
-    converted = convert_file(filepath, grids, lods, weights, level_set_band, vector_magnitude,
-                             max_bytes, compute_error, progress, cancel, skipped,
-                             color_grid=color_grid)
-    return build_objects(converted, collection, dict(weights=weights, level_set_band=level_set_band,
-                                                     vector_magnitude=vector_magnitude))
+def convert_file(filepath, grids=None, lods=None, *, options=None, progress=None, cancel=None,
+                 skipped=None, **changes) -> list:
+    """Read and convert one file (no Blender data is touched). Raises VDBImportError or
+    ImportCancelled. ``grids``, ``lods`` and ``changes`` (ConvertOptions fields) over ``options``."""
+    return conversion.convert_file(filepath, options_of(options, grids, lods, **changes), progress,
+                                   cancel, skipped)
 
 
-def import_files(context, paths, grids=None, lods=("medium",), weights="field",
-                 level_set_band=True, vector_magnitude=False, progress=None, cancel=None,
-                 max_bytes=None, compute_error=True, sequence=True, *, tolerance=0.02,
-                 color_grid=None):
+def import_vdb(filepath, grids=None, lods=None, *, options=None, collection=None, progress=None,
+               cancel=None, skipped=None, **changes) -> list:
+    """Import the grids of one .vdb file; returns the new objects (one per grid). ``grids``,
+    ``lods`` and ``changes`` (ConvertOptions fields) over ``options``. A ``color_grid`` the file
+    does not hold raises VDBImportError naming the grid and the file."""
+    opts = options_of(options, grids, lods, **changes)
+    converted = conversion.convert_file(filepath, opts, progress, cancel, skipped)
+    return build_objects(converted, collection, opts)
+
+
+def import_files(context, paths, grids=None, lods=None, *, options=None, sequence=True,
+                 progress=None, cancel=None, **changes):
     """Import several files; all are converted before any object is created. -> (objects, message)
 
     With ``sequence`` a numbered file with numbered siblings (or several numbered files
     selected) imports as one sequence: one object per grid following the timeline (sequences
     take no colour grid: ``color_grid`` applies to single files)."""
+    opts = options_of(options, grids, lods, **changes)
     if not paths:
-        raise ImportError_("no file selected")
+        raise VDBImportError("no file selected")
     import time
-
-    from . import sequence_import
 
     t0 = time.perf_counter()
 
@@ -195,24 +123,20 @@ def import_files(context, paths, grids=None, lods=("medium",), weights="field",
     skipped = []
     for pat, items, is_seq in sequence_import.sequences(paths) if sequence else [(None, paths, False)]:
         if is_seq:
-            if color_grid:
-                raise ImportError_(f"{os.path.basename(items[0])}: a colour grid is for single "
-                                   "files, not sequences (turn Sequence off)")
+            if opts.color_grid:
+                raise VDBImportError(f"{os.path.basename(items[0])}: a colour grid is for single "
+                                     "files, not sequences (turn Sequence off)")
             converted += sequence_import.convert_sequence(
-                pat.path(items[0]), items if len(items) > 1 else None, grids, lods, weights,
-                level_set_band, vector_magnitude, max_bytes, compute_error, progress, cancel, skipped,
-                tolerance=tolerance)
+                pat.path(items[0]), items if len(items) > 1 else None, opts, progress, cancel,
+                skipped)
             continue
         for path in items if pat is None else [pat.path(n) for n in items]:
-            converted += convert_file(path, grids, lods, weights, level_set_band, vector_magnitude,
-                                      max_bytes, compute_error, progress, cancel, skipped,
-                                      tolerance=tolerance, color_grid=color_grid)
+            converted += conversion.convert_file(path, opts, progress, cancel, skipped)
     collection = None
     if context is not None and getattr(context, "view_layer", None) is not None:
         collection = context.view_layer.active_layer_collection.collection
     t1 = time.perf_counter()
-    objs = build_objects(converted, collection, dict(weights=weights, level_set_band=level_set_band,
-                                                     vector_magnitude=vector_magnitude))
+    objs = build_objects(converted, collection, opts)
     sequence_import.name_objects(objs)
     t2 = time.perf_counter()
     if context is not None and getattr(context, "view_layer", None) is not None and objs:
@@ -283,35 +207,29 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
 
     st = obj.gaussvdb
     if not st.is_gaussvdb:
-        raise ImportError_(f"{obj.name} is not a GaussVDB object")
+        raise VDBImportError(f"{obj.name} is not a GaussVDB object")
     from . import source_path
 
     path = source_path.absolute(st)
     vol = st.source_volume
+    opts = st.convert_options(grids=(st.grid_name,), lods=tuple(lod_names(obj)),
+                              max_bytes=max_bytes, compute_error=compute_error)
     if vol is not None and vol.is_sequence:  # every frame's figures again, one frame converted
-        from . import sequence_import
-
-        converted = sequence_import.convert_sequence(
-            path, None, [st.grid_name], lod_names(obj), st.weights_rule(),
-            st.level_set_band, st.vector_magnitude, max_bytes, compute_error, progress, cancel)
+        converted = sequence_import.convert_sequence(path, None, opts, progress, cancel)
         for c in converted:  # keeps the object's own Volume and its timing
             c.sequence["settings"] = dict(frame_start=vol.frame_start, frame_offset=vol.frame_offset,
                                           frame_duration=vol.frame_duration,
                                           sequence_mode=vol.sequence_mode)
     else:
-        converted = convert_file(path, [st.grid_name], lod_names(obj),
-                                 st.weights_rule(), st.level_set_band, st.vector_magnitude,
-                                 max_bytes, compute_error, progress, cancel,
-                                 color_grid=st.color_grid or None)
+        converted = conversion.convert_file(path, opts.replace(color_grid=st.color_grid),
+                                            progress, cancel)
     cg = next((c for c in converted if c.name == st.grid_name), None)
     if cg is None:
-        raise ImportError_(f"{os.path.basename(path)} no longer holds grid {st.grid_name!r}")
+        raise VDBImportError(f"{os.path.basename(path)} no longer holds grid {st.grid_name!r}")
     old_matrix = stored_index_to_world(obj)
     moved = not np.allclose(np.asarray(obj.matrix_world, np.float64), old_matrix, rtol=1e-6, atol=1e-9)
     viewport, render = st.viewport_lod, st.render_lod
-    new = build_objects([cg], obj.users_collection[0] if obj.users_collection else None,
-                        dict(weights=st.weights_rule(), level_set_band=st.level_set_band,
-                             vector_magnitude=st.vector_magnitude))[0]
+    new = build_objects([cg], obj.users_collection[0] if obj.users_collection else None, opts)[0]
     old_data = obj.data
     try:
         obj.data = new.data

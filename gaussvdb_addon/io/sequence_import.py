@@ -1,6 +1,7 @@
 """Import of a numbered .vdb sequence (``fluid_data_0001.vdb`` ...) as one object per grid.
 
     objs = import_sequence("cache/fluid_data_0001.vdb", lods=("low", "medium"))
+    import_sequence(path, options=ConvertOptions(grids=("density",), compute_error=False))
 
 Like Blender's Volume import: the frames are the files sharing the name with another trailing
 number (zero padding kept, gaps allowed), the object's source Volume holds the first file with
@@ -20,22 +21,24 @@ import numpy as np
 
 from ...kernels import pipeline
 from ...kernels import sequence as seq
-from . import importer
-from .importer import ImportError_
+from ...kernels.convert_options import DEFAULTS, options_of
+from . import conversion
+from .conversion import VDBImportError
+from .datablocks import build_objects
 
 
 def sequence_of(path, numbers=None):
     """(Pattern, frame numbers) of the sequence ``path`` belongs to: every numbered sibling on
     disk, or those between the smallest and largest of ``numbers`` (the files selected)."""
-    pat = seq.parse(importer.bpy_abspath(path) if path else path)
+    pat = seq.parse(conversion.bpy_abspath(path) if path else path)
     if pat is None:
-        raise ImportError_(f"{os.path.basename(path)} has no frame number: not a sequence")
+        raise VDBImportError(f"{os.path.basename(path)} has no frame number: not a sequence")
     present = pat.scan()
     if numbers:
         lo, hi = min(numbers), max(numbers)
         present = [n for n in present if lo <= n <= hi]
     if not present:
-        raise ImportError_(f"no frames of {pat.text} in {pat.directory or '.'}")
+        raise VDBImportError(f"no frames of {pat.text} in {pat.directory or '.'}")
     return pat, present
 
 
@@ -97,16 +100,15 @@ def _frame_pass(pat, present, wanted, progress):
     return figures, boxes, holds, names, unreadable
 
 
-def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="field",
-                     level_set_band=True, vector_magnitude=False, max_bytes=None,
-                     compute_error=True, progress=None, cancel=None, skipped=None, *,
-                     tolerance=0.02):
+def convert_sequence(path, numbers=None, options=DEFAULTS, progress=None, cancel=None,
+                     skipped=None):
     """Phase 1 of a sequence import (no Blender data): [ConvertedGrid] with ``sequence`` set.
-    ``tolerance``: the adaptive LOD's (frames converted later use the default)."""
+    ``options``: a ConvertOptions (its tolerance is the shown frame's; frames converted later
+    use the object's settings, kept by build_objects, with the default tolerance)."""
     pat, present = sequence_of(path, numbers)
     skipped = [] if skipped is None else skipped
-    wanted = pipeline.split_names(grids)
-    report = importer._Progress(progress) if progress is not None else None
+    wanted = None if options.grids is None else list(options.grids)
+    report = conversion.Progress(progress) if progress is not None else None
     try:
         if wanted is None:  # defaults per cache layout, from the first frame that can be read
             from ...kernels import vdb
@@ -122,7 +124,7 @@ def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="
         figures, boxes, holds, names, unreadable = _frame_pass(pat, present, wanted, report)
         if len(unreadable) == len(present):
             n, why = next(iter(unreadable.items()))
-            raise ImportError_(f"no frame of {pat.text} can be read ({os.path.basename(pat.path(n))}: "
+            raise VDBImportError(f"no frame of {pat.text} can be read ({os.path.basename(pat.path(n))}: "
                                f"{why})")
         chosen = [g for g in (wanted or names) if g in boxes]
         for g in wanted or ():
@@ -132,7 +134,7 @@ def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="
                 skipped.append((g, "no voxels in any frame (or a vector grid)"))
         if not chosen:
             why = "; ".join(f"{n}: {r}" for n, r in skipped) or "the frames hold no scalar grid"
-            raise ImportError_(f"no scalar grid to import in {pat.text} ({why})")
+            raise VDBImportError(f"no scalar grid to import in {pat.text} ({why})")
         settings = dict(frame_start=1, frame_offset=present[0] - 1,
                         frame_duration=present[-1] - present[0] + 1, sequence_mode="REPEAT")
         out = []
@@ -143,9 +145,8 @@ def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="
                 report(0.5 + 0.5 * k / len(chosen), f"{name}: converting frame {shown}")
             if cancel is not None and cancel():
                 raise pipeline.ConversionCancelled()
-            cg = next(c for c in importer.convert_file(
-                pat.path(shown), [name], lods, weights, level_set_band, vector_magnitude, max_bytes,
-                compute_error, None, cancel, None, tolerance=tolerance) if c.name == name)
+            cg = next(c for c in conversion.convert_file(
+                pat.path(shown), options.replace(grids=(name,)), None, cancel) if c.name == name)
             cg.filepath = pat.path(present[0])
             cg.values = seq.union_stats(per.values()) or cg.values
             cg.leaf_box = boxes[name]
@@ -160,16 +161,13 @@ def convert_sequence(path, numbers=None, grids=None, lods=("medium",), weights="
             report.end()
 
 
-def import_sequence(path, numbers=None, grids=None, lods=("medium",), weights="field",
-                    level_set_band=True, vector_magnitude=False, collection=None, progress=None,
-                    cancel=None, max_bytes=None, compute_error=True, skipped=None) -> list:
-    """Import a numbered sequence: one object per grid for all its frames."""
-    converted = convert_sequence(path, numbers, grids, lods, weights, level_set_band,
-                                 vector_magnitude, max_bytes, compute_error, progress, cancel,
-                                 skipped)
-    objs = importer.build_objects(converted, collection,
-                                  dict(weights=weights, level_set_band=level_set_band,
-                                       vector_magnitude=vector_magnitude))
+def import_sequence(path, numbers=None, grids=None, lods=None, *, options=None, collection=None,
+                    progress=None, cancel=None, skipped=None, **changes) -> list:
+    """Import a numbered sequence: one object per grid for all its frames. ``grids``, ``lods``
+    and ``changes`` (ConvertOptions fields) over ``options``."""
+    opts = options_of(options, grids, lods, **changes)
+    converted = convert_sequence(path, numbers, opts, progress, cancel, skipped)
+    objs = build_objects(converted, collection, opts)
     name_objects(objs)
     return objs
 

@@ -148,6 +148,14 @@ class GaussVDBObjectSettings(ClipProps, SurfaceProps, VolumeShadingProps, ColorG
         return self.weights if self.weights in lod_names.WEIGHTS else self.weight_rule
     level_set_band: BoolProperty(name="Zero-Crossing Band Only", default=True)
     vector_magnitude: BoolProperty(name="Vector Magnitude", default=False)
+
+    def convert_options(self, **changes):
+        """The ConvertOptions this object was imported with (what Reload and its sequence
+        frames convert with again), with ``changes``."""
+        from ...kernels.convert_options import ConvertOptions
+
+        return ConvertOptions(weights=self.weights_rule(), level_set_band=bool(self.level_set_band),
+                              vector_magnitude=bool(self.vector_magnitude), **changes)
     viewport_lod: EnumProperty(name="Viewport LOD", items=lod_items, update=_tag,
                                description="LOD drawn in the viewport")
     render_lod: EnumProperty(name="Render LOD", items=lod_items, update=_tag,

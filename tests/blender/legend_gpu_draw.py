@@ -68,7 +68,7 @@ def main(out):
 
     bpy.utils.register_class(Probe)
     setup_render(scene, 8, 8, engine=Probe.bl_idname)
-    addon_module("gaussvdb_addon.engine.final_render").set_exact_colors(scene)
+    addon_module("gaussvdb_addon.engine.image_file").set_exact_colors(scene)
     bpy.ops.render.render()
     patch = overlay.patch(s, sync, tf, H)
     np.savez(out, pixels=got["pixels"], display=got["display"], patch=patch, renderer=got["renderer"])

@@ -56,7 +56,7 @@ def _exr_channels(bpy, path):
 # -- threads --------------------------------------------------------------------------------------
 def test_threads_from_render_performance(bpy_module, scene, tmp_path):
     bpy = bpy_module
-    fr = _mod("gaussvdb_addon.engine.final_render")
+    fi = _mod("gaussvdb_addon.engine.image_file")
     _cloud(bpy, scene)
     r = scene.render
     r.threads_mode = "AUTO"
@@ -64,7 +64,7 @@ def test_threads_from_render_performance(bpy_module, scene, tmp_path):
     r.threads_mode, r.threads = "FIXED", 1
     assert _sync(bpy, scene).threads == 1
     assert not hasattr(scene.gaussvdb, "threads")  # no copy of Blender's setting
-    stats = fr.render_scene_to_file(scene, str(tmp_path / "t.png"))
+    stats = fi.render_scene_to_file(scene, str(tmp_path / "t.png"))
     assert stats["threads"] == 1
 
 
@@ -72,7 +72,7 @@ def test_threads_from_render_performance(bpy_module, scene, tmp_path):
 @pytest.mark.parametrize("depth,value", [(True, False), (False, True), (True, True)])
 def test_passes_from_the_view_layer(bpy_module, scene, tmp_path, depth, value):
     bpy = bpy_module
-    fr = _mod("gaussvdb_addon.engine.final_render")
+    fi = _mod("gaussvdb_addon.engine.image_file")
     _cloud(bpy, scene)
     layer = scene.view_layers[0]
     layer.use_pass_z = depth
@@ -86,7 +86,7 @@ def test_passes_from_the_view_layer(bpy_module, scene, tmp_path, depth, value):
     path = str(tmp_path / "passes.exr")
     scene.render.filepath = path
     scene.render.use_file_extension = False
-    fr.set_exact_colors(scene)
+    fi.set_exact_colors(scene)
     bpy.ops.render.render(write_still=True)
     ch = _exr_channels(bpy, path)
     prefix = f"{layer.name}."
@@ -107,9 +107,9 @@ def test_passes_from_the_view_layer(bpy_module, scene, tmp_path, depth, value):
 
 # -- background -----------------------------------------------------------------------------------
 def _background_pixel(bpy, scene, tmp_path, name):
-    fr = _mod("gaussvdb_addon.engine.final_render")
+    fi = _mod("gaussvdb_addon.engine.image_file")
     path = str(tmp_path / f"{name}.exr")
-    fr.render_scene_to_file(scene, path)
+    fi.render_scene_to_file(scene, path)
     return read_image(bpy, path)[0, 0]
 
 

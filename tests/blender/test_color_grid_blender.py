@@ -81,7 +81,7 @@ def test_scene_sync_hands_over_the_colour_map(scene, fire, bpy_module):
 def test_missing_colour_grid_is_one_line(scene, fire, bpy_module):
     imp = _mod("gaussvdb_addon.io.importer")
     before = len(bpy_module.data.objects)
-    with pytest.raises(imp.ImportError_) as err:
+    with pytest.raises(imp.VDBImportError) as err:
         imp.import_vdb(fire, grids="density", lods=("low",), color_grid="heat", compute_error=False,
                        collection=scene.collection)
     msg = str(err.value)

@@ -31,7 +31,7 @@ def write_constant(path, value, layout):
 
 
 def _render(bpy, scene, path, mode, out):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import image_file
     from bl_ext.user_default.gaussvdb.gaussvdb_addon.io import importer
 
     objs = importer.import_vdb(str(path), lods=("medium",), collection=scene.collection,
@@ -50,7 +50,7 @@ def _render(bpy, scene, path, mode, out):
     s.density = 0.05 * (20000.0 if mode == "PAPER" else 1.0)
     scene.render.threads_mode, scene.render.threads = "FIXED", 1
     scene.render.film_transparent = True
-    stats = final_render.render_scene_to_file(scene, str(out))
+    stats = image_file.render_scene_to_file(scene, str(out))
     return read_image(bpy, out), stats
 
 

@@ -24,9 +24,9 @@ def _cloud_scene(bpy, scene):
 
 
 def _render_exr(bpy, scene, path):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import image_file
 
-    final_render.render_scene_to_file(scene, str(path))
+    image_file.render_scene_to_file(scene, str(path))
     return read_image(bpy, path)
 
 
@@ -106,7 +106,7 @@ def test_camera_clip_start_and_end(bpy_module, scene):
 def test_camera_plane_matches_blenders_view_frame(bpy_module, scene, kind, fit, size, aspect):
     """The image rectangle of camera_from_object (sensor fit, shift, pixel aspect) against
     Blender's own camera frame for the scene."""
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import camera
 
     bpy = bpy_module
     ob = add_camera(bpy, scene, (0, 0, 0), (0, 0, 0), ortho_scale=3.0 if kind == "ORTHO" else None, lens=35.0)
@@ -115,7 +115,7 @@ def test_camera_plane_matches_blenders_view_frame(bpy_module, scene, kind, fit, 
     cam.shift_x, cam.shift_y = 0.1, -0.05
     setup_render(scene, *size)
     scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = aspect
-    c = final_render.scene_camera(scene, None, *size)
+    c = camera.scene_camera(scene, None, *size)
     ex, ey, ox, oy = c.plane()
     fr = np.array([list(v) for v in cam.view_frame(scene=scene)])
     if kind == "PERSP":

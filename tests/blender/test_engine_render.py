@@ -27,14 +27,14 @@ def _ramp_scene(bpy, scene):
 
 
 def test_ramp_png_matches_colormap_table(bpy_module, scene, tmp_path):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import image_file
     from bl_ext.user_default.gaussvdb.kernels.render.colormaps import colormap
 
     bpy = bpy_module
     _ramp_scene(bpy, scene)
     scene.gaussvdb.colormap = "viridis"
     path = str(tmp_path / "ramp.png")
-    stats = final_render.render_scene_to_file(scene, path)
+    stats = image_file.render_scene_to_file(scene, path)
     assert os.path.isfile(path)
     assert stats["gaussians"] == 64 * 4 * 32 and stats["width"] == W
     px = read_image(bpy, path)  # 8-bit values / 255, row 0 = bottom
@@ -106,7 +106,7 @@ def test_test_break_stops_quickly_and_stats(bpy_module, scene):
 def test_bands_whole_tile_rows_after_one_setup(bpy_module, scene):
     """The frame is prepared once; the bands are whole screen-tile rows (several per thread), so
     the band size never collapses to a row however long the set-up took."""
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import devices, final_render
 
     bpy = bpy_module
     make_object(bpy, "Cloud", lattice(16, 16, 16), values=np.linspace(0, 1, 16 ** 3))
@@ -114,7 +114,7 @@ def test_bands_whole_tile_rows_after_one_setup(bpy_module, scene):
     setup_render(scene, 120, 203)
     scene.render.threads_mode, scene.render.threads = "FIXED", 2
     dg = bpy.context.evaluated_depsgraph_get()
-    dev = final_render.get_device()
+    dev = devices.final_device()[0]
     calls = []
     render = dev.render
 
@@ -145,7 +145,7 @@ def test_bands_whole_tile_rows_after_one_setup(bpy_module, scene):
 def test_splat_mode_renders_the_field_through_the_engine(bpy_module, scene, tmp_path):
     """F12 in Splat mode draws the Gaussian field as Field mode does (the same model on a lattice),
     and the mode's switch back and forth re-syncs (no stale lattice or voxels)."""
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import image_file
 
     bpy = bpy_module
     c = lattice(12, 12, 12)
@@ -160,7 +160,7 @@ def test_splat_mode_renders_the_field_through_the_engine(bpy_module, scene, tmp_
     for mode in ("FIELD", "SPLAT", "FIELD"):
         s.mode = mode
         path = str(tmp_path / f"{mode}.png")
-        final_render.render_scene_to_file(scene, path)
+        image_file.render_scene_to_file(scene, path)
         img[mode] = read_image(bpy, path)
     a = img["FIELD"][..., 3]
     assert a.max() > 0.3

@@ -109,7 +109,7 @@ def test_viewport_camera_equals_final_camera(bpy_module, scene, kind, fit, size,
     """Region matrices as Blender builds them for the camera view (view = inverse camera matrix,
     window = the camera's projection for the region size) give the final render's rays."""
     bpy = bpy_module
-    fr, vp = _mod("engine.final_render"), _mod("engine.viewport")
+    cm, vp = _mod("engine.camera"), _mod("engine.viewport")
     w, h = size
     ob = add_camera(bpy, scene, (3.0, -8.0, 2.5), (1.2, 0.1, 0.4),
                     ortho_scale=7.0 if kind == "ORTHO" else None, lens=35.0)
@@ -118,10 +118,10 @@ def test_viewport_camera_equals_final_camera(bpy_module, scene, kind, fit, size,
     ob.data.shift_x, ob.data.shift_y = shift
     setup_render(scene, w, h)
     dg = bpy.context.evaluated_depsgraph_get()
-    final = fr.scene_camera(scene, dg, w, h)
+    final = cm.scene_camera(scene, dg, w, h)
     window = ob.evaluated_get(dg).calc_matrix_camera(dg, x=w, y=h)
     view = ob.matrix_world.inverted()
-    region = vp.camera_from_matrices(view, window, w, h, kind == "PERSP")
+    region = cm.camera_from_matrices(view, window, w, h, kind == "PERSP")
     o1, d1 = _rays(final)
     o2, d2 = _rays(region)
     assert np.abs(d1 - d2).max() < 1e-6  # Blender matrices are float32
@@ -163,7 +163,7 @@ def test_progressive_schedule(addon):
 def test_viewport_worker_refines(bpy_module, scene):
     """The worker's step() renders 1/8 .. full resolution of the submitted view, headless."""
     bpy = bpy_module
-    fr, vp = _mod("engine.final_render"), _mod("engine.viewport")
+    cm, vp = _mod("engine.camera"), _mod("engine.viewport")
     make_object(bpy, "Cloud", lattice(8, 8, 8), values=np.linspace(0, 1, 512))
     add_camera(bpy, scene, (3.5, -30.0, 3.5), (math.pi / 2, 0.0, 0.0))
     scene.render.threads_mode, scene.render.threads = "FIXED", 1
@@ -178,7 +178,7 @@ def test_viewport_worker_refines(bpy_module, scene):
     sess = vp.ViewportSession(Eng())
     sess.update(None, dg)
     sess.schedule.rest = 0.0
-    cam = fr.scene_camera(scene, dg, 64, 48)
+    cam = cm.scene_camera(scene, dg, 64, 48)
     sess.job = None
     with sess.lock:
         sess.schedule.restart()

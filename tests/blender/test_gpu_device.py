@@ -170,7 +170,7 @@ def _fog_file(tmp_path):
 
 
 def test_f12_write_still_with_the_gpu_device(gpu, bpy_module, scene, tmp_path):
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import image_file
     from bl_ext.user_default.gaussvdb.gaussvdb_addon.io import importer
 
     importer.import_vdb(str(_fog_file(tmp_path)), lods=("low",), collection=scene.collection,
@@ -183,7 +183,7 @@ def test_f12_write_still_with_the_gpu_device(gpu, bpy_module, scene, tmp_path):
     for device in ("CPU", "GPU"):
         scene.gaussvdb.device = device
         out = tmp_path / f"{device}.exr"
-        stats = final_render.render_scene_to_file(scene, str(out))  # render.render(write_still=True)
+        stats = image_file.render_scene_to_file(scene, str(out))  # render.render(write_still=True)
         assert out.exists() and stats["device"] == device
         images[device] = read_image(bpy_module, out)
     assert stats["gpu"]

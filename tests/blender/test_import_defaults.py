@@ -116,7 +116,7 @@ def test_old_string_source_path_migrates_on_load(bpy_module, scene, tmp_path):
 def _render_alpha(bpy, tmp_path, size, unit=None):
     from tools import cmd_render
 
-    fr = _mod("gaussvdb_addon.engine.final_render")
+    fi = _mod("gaussvdb_addon.engine.image_file")
     imp = _mod("gaussvdb_addon.io.importer")
     bs = _mod("gaussvdb_addon.engine.blender_settings")
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -132,7 +132,7 @@ def _render_alpha(bpy, tmp_path, size, unit=None):
     if unit is not None:
         scene.gaussvdb.density_unit = unit
     path = str(tmp_path / f"size{size}_{unit}.exr")
-    fr.render_scene_to_file(scene, path)
+    fi.render_scene_to_file(scene, path)
     from test_engine_helpers import read_image
 
     return read_image(bpy, path)[..., 3]
@@ -193,7 +193,7 @@ def test_compile_time_is_reported_apart(bpy_module, scene, tmp_path):
     make_object(bpy, "Cloud", lattice(8, 8, 8), values=np.linspace(0, 1, 512))
     add_camera(bpy, scene, (3.5, -40.0, 3.5), (1.5707963, 0.0, 0.0))
     setup_render(scene, 24, 16)
-    fr._DEVICE.clear()  # as in a new session: the next render makes (and loads) its device
+    _mod("gaussvdb_addon.engine.devices").forget()  # as in a new session: the next render loads its device
     eng = FakeEngine()
     fr.render(eng, bpy.context.evaluated_depsgraph_get())
     assert not eng.errors

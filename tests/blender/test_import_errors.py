@@ -22,9 +22,9 @@ def test_bad_file_leaves_scene_untouched(scene, bpy_module, tmp_path):
     before = _ids(bpy)
     with pytest.raises(RuntimeError, match="bad.vdb"):
         bpy.ops.gaussvdb.import_vdb(filepath=str(bad))
-    with pytest.raises(_imp().ImportError_, match="bad.vdb"):
+    with pytest.raises(_imp().VDBImportError, match="bad.vdb"):
         _imp().import_vdb(str(bad))
-    with pytest.raises(_imp().ImportError_, match="no such file"):
+    with pytest.raises(_imp().VDBImportError, match="no such file"):
         _imp().import_vdb(str(tmp_path / "missing.vdb"))
     assert _ids(bpy) == before
 
@@ -32,11 +32,11 @@ def test_bad_file_leaves_scene_untouched(scene, bpy_module, tmp_path):
 def test_no_scalar_grid(scene, bpy_module):
     bpy = bpy_module
     imp = _imp()
-    with pytest.raises(imp.ImportError_, match="no scalar grid.*velocity: vector grid"):
+    with pytest.raises(imp.VDBImportError, match="no scalar grid.*velocity: vector grid"):
         imp.import_vdb(SAMPLE, grids=["velocity"])
-    with pytest.raises(imp.ImportError_, match="flame: empty grid"):
+    with pytest.raises(imp.VDBImportError, match="flame: empty grid"):
         imp.import_vdb(SAMPLE, grids=["flame"])
-    with pytest.raises(imp.ImportError_, match="no grid named 'nope'"):
+    with pytest.raises(imp.VDBImportError, match="no grid named 'nope'"):
         imp.import_vdb(SAMPLE, grids=["nope"])
     assert _ids(bpy) == (0, 0, 0)
 
@@ -44,7 +44,7 @@ def test_no_scalar_grid(scene, bpy_module):
 def test_memory_guard(scene, bpy_module):
     bpy = bpy_module
     imp = _imp()
-    with pytest.raises(imp.ImportError_, match="above the limit"):
+    with pytest.raises(imp.VDBImportError, match="above the limit"):
         imp.import_vdb(SAMPLE, max_bytes=1 << 16)
     assert _ids(bpy) == (0, 0, 0)
 
@@ -87,11 +87,11 @@ def test_failure_while_creating_datablocks_removes_them(scene, bpy_module, monke
 
 def test_bad_options(scene, addon):
     imp = _imp()
-    with pytest.raises(imp.ImportError_, match="unknown LOD preset 'ultra'"):
+    with pytest.raises(imp.VDBImportError, match="unknown LOD preset 'ultra'"):
         imp.import_vdb(SAMPLE, lods=("ultra",))
-    with pytest.raises(imp.ImportError_, match="at least one"):
+    with pytest.raises(imp.VDBImportError, match="at least one"):
         imp.import_vdb(SAMPLE, lods=())
-    with pytest.raises(imp.ImportError_, match="unknown weights"):
+    with pytest.raises(imp.VDBImportError, match="unknown weights"):
         imp.import_vdb(SAMPLE, weights="magic")
     assert imp.split_names(" density, ,temperature ") == ["density", "temperature"]
     assert imp.split_names("") is None

@@ -126,8 +126,8 @@ def test_undo_removes_the_import_in_one_step(scene, bpy_module):
 
 
 def _render(bpy, scene, path):
-    final_render = importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.engine.final_render")
-    final_render.render_scene_to_file(scene, path)
+    image_file = importlib.import_module(ADDON_MODULE + ".gaussvdb_addon.engine.image_file")
+    image_file.render_scene_to_file(scene, path)
     from test_engine_helpers import read_image
 
     return read_image(bpy, path).reshape(-1)

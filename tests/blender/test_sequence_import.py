@@ -221,9 +221,9 @@ def _camera_scene(bpy, scene):
     s.auto_range, s.value_min, s.value_max = False, 0.0, 1.0  # the same colours for every file
     s.density_unit, s.density = "WORLD", 20.0
     scene.render.threads_mode, scene.render.threads = "FIXED", 2
-    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import final_render
+    from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import image_file
 
-    final_render.set_exact_colors(scene)
+    image_file.set_exact_colors(scene)
     scene.render.image_settings.file_format = "PNG"
     scene.render.use_file_extension = True
 

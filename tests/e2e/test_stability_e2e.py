@@ -1,7 +1,7 @@
 """Issue 8, end to end: extreme .vdb files written with the bundled openvdb, imported with the
 importer's plain function (``import_vdb``) and rendered through the scene-sync helper and the
 device. Each case either renders a finite, sensible image (checked against an independent float64
-numpy closed form where the image is exact) or stops with a clear ImportError_ and leaves the
+numpy closed form where the image is exact) or stops with a clear VDBImportError and leaves the
 scene as it was.
 
 The closed form: with a constant-alpha transfer function, particles mode is exact,
@@ -82,7 +82,7 @@ def frame(obj, size=24, direction=(1.0, 0.6, -0.4), kind="persp"):
 
 
 def device():
-    return _mod("gaussvdb_addon.engine.final_render").get_device()
+    return _mod("gaussvdb_addon.engine.devices").final_device()[0]
 
 
 def check_sane(out, tf=None):
@@ -149,7 +149,7 @@ def test_nan_inf_voxels_never_crash_or_half_build(bpy_module, scene, tmp_path):
     before = _ids(bpy)
     try:
         obj = import_one(path, lods=("low", "high"))
-    except _imp().ImportError_ as err:
+    except _imp().VDBImportError as err:
         assert _ids(bpy) == before and "naninf.vdb" in str(err)
         return
     assert obj.type == "POINTCLOUD"
@@ -170,7 +170,7 @@ def test_nan_inf_voxels_sanitized_or_refused(bpy_module, scene, tmp_path):
         warnings.simplefilter("always")
         try:
             obj = import_one(path, lods=("low", "high"), compute_error=True)
-        except _imp().ImportError_ as err:
+        except _imp().VDBImportError as err:
             assert _ids(bpy) == before
             assert any(w in str(err).lower() for w in ("nan", "inf", "non-finite")), str(err)
             return
@@ -299,7 +299,7 @@ def test_empty_grid_refused_scene_untouched(bpy_module, scene, tmp_path):
     imp = _imp()
     for name, vals in (("none", None), ("allbg", np.zeros((8, 8, 8), np.float32))):
         path = write_grid(tmp_path / f"{name}.vdb", vals)
-        with pytest.raises(imp.ImportError_, match="empty grid"):
+        with pytest.raises(imp.VDBImportError, match="empty grid"):
             imp.import_vdb(str(path))
         assert _ids(bpy) == before
     # an empty scene renders the background, nothing else

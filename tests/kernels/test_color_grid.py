@@ -90,7 +90,7 @@ def test_pipeline_carries_the_colour_grid(fire):
     path, density, temperature, _ = fire
     cg = pipeline.convert_file(path, ["density"], ["low", "high"], color_grid="temperature",
                                compute_error=False)[0]
-    assert cg.color_grid == "temperature" and cg.color_values["max"] == pytest.approx(3.0)
+    assert cg.color_grid == "temperature" and cg.color_stats["max"] == pytest.approx(3.0)
     for cl in cg.lods:
         np.testing.assert_array_equal(cl.gset.color_values,
                                       second_values(cl.gset, density, temperature))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from kernels import sequence as seq
+from kernels.convert_options import ConvertOptions
 
 
 def test_parse_numbered_and_hash_patterns(tmp_path):
@@ -111,7 +112,8 @@ def test_disk_cache_roundtrip_and_stale(tmp_path):
     src = tmp_path / "f_0001.vdb"
     src.write_bytes(os.urandom(200_000))
     fp = seq.fingerprint(src)
-    name = seq.cache_name(src, "den sity", "low", "paper", False, True)
+    opts = ConvertOptions(weights="paper", level_set_band=False, vector_magnitude=True)
+    name = seq.cache_name(src, "den sity", "low", opts)
     assert name == "f_0001.den_sity.low.paper.fullband.mag.npz"
     path = tmp_path / "cache" / name
     enc = {"x": np.arange(5, dtype=np.uint8)}
