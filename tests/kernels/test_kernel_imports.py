@@ -1,44 +1,21 @@
 """The kernels' import graph: no bpy or gpu anywhere under kernels/, and no cycle between kernel
 modules, counting imports inside functions too (a lazy import hides a cycle, it does not remove
 it). Registration of the extension loads no numba."""
-import ast
-import os
 import subprocess
 import sys
 import textwrap
 
+import import_graph
 from conftest import ROOT
-
-KERNELS = os.path.join(ROOT, "kernels")
 
 
 def _modules():
-    out = {}
-    for d, _dirs, files in os.walk(KERNELS):
-        for f in files:
-            if f.endswith(".py"):
-                path = os.path.join(d, f)
-                rel = os.path.relpath(path, ROOT)[:-3].replace(os.sep, ".")
-                out[rel[:-len(".__init__")] if rel.endswith(".__init__") else rel] = path
-    return out
+    return import_graph.modules(("kernels",))
 
 
 def _imports(name, path, known):
     """Kernel modules (and any other top-level names) that module ``name`` imports."""
-    tree = ast.parse(open(path, encoding="utf-8").read(), path)
-    pkg = name if path.endswith("__init__.py") else name.rpartition(".")[0]
-    found = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            found |= {a.name for a in node.names}
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = pkg.split(".")
-                base = ".".join(parts[:len(parts) - node.level + 1] + ([base] if base else []))
-            found.add(base)
-            found |= {f"{base}.{a.name}" for a in node.names if f"{base}.{a.name}" in known}
-    return found
+    return import_graph.imports(name, path, known)
 
 
 def test_no_bpy_or_gpu_under_kernels():
@@ -50,30 +27,7 @@ def test_no_bpy_or_gpu_under_kernels():
 
 
 def test_no_import_cycle_inside_kernels():
-    mods = _modules()
-    graph = {n: {i for i in _imports(n, p, mods) if i in mods and i != n} for n, p in mods.items()}
-    # a package imports its submodules through __init__ by design; a submodule importing its own
-    # package's __init__ is the cycle to catch, so only __init__ -> child edges are dropped
-    for n in graph:
-        if os.path.basename(mods[n]) == "__init__.py":
-            graph[n] = {i for i in graph[n] if not i.startswith(n + ".")}
-    cycles = []
-    state = {}
-
-    def visit(n, stack):
-        state[n] = 1
-        stack.append(n)
-        for m in sorted(graph[n]):
-            if state.get(m) == 1:
-                cycles.append(stack[stack.index(m):] + [m])
-            elif m not in state:
-                visit(m, stack)
-        stack.pop()
-        state[n] = 2
-
-    for n in sorted(graph):
-        if n not in state:
-            visit(n, [])
+    cycles = import_graph.cycles(import_graph.graph(_modules()))
     assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
 
 
