@@ -9,9 +9,9 @@ Weights: "field" (default, normalized kernels, partition of unity) or "paper" (a
 """
 from .build import DEFAULTS, PRESETS, WEIGHTS, build_lod
 from .encoding import decode_compact, encode_compact, encoded_nbytes, paper_model_bytes
-from .error import field_error
 from .gaussian_set import GaussianSet
 from .gridprep import effective_masks, value_range
+from .mixture import field_error
 
 __all__ = ["PRESETS", "WEIGHTS", "DEFAULTS", "GaussianSet", "build_lod",
            "field_error", "encode_compact", "decode_compact", "encoded_nbytes",

@@ -29,9 +29,9 @@ import numpy as np
 
 from ..jit import parallel_njit, prange
 from . import weights as W
-from .error import DEFAULT_K, cell_table, field_error, nrmse_denominator, pair_lists
 from .fit import fit_weights
 from .gaussian_set import GaussianSet
+from .mixture import DEFAULT_K, cell_table, field_error, nrmse_denominator, pair_lists
 
 MAX_ROUNDS = 12  # fit + split rounds (a leaf reaches single voxels in 3 splits)
 CG_STEPS = 6  # per round: conjugate-gradient steps, then

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .error import cell_keys
+from .mixture import cell_keys
 
 DEFAULT_MERGE_TOL = 0.02
 

@@ -1,4 +1,4 @@
-"""The field error's lattice path (error.py): the set's most common classes of equal-sigma
+"""The field error's lattice path (mixture.py): the set's most common classes of equal-sigma
 Gaussians on one block lattice are summed per cell from a grid of nodes, not from pair lists.
 
 A class is (sigma triple, edge e per axis): leaf-group Gaussians with that sigma whose centre

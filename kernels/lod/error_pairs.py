@@ -1,4 +1,4 @@
-"""The field error's pair lists (error.py): which leaf cells each Gaussian's k-sigma box meets
+"""The field error's pair lists (mixture.py): which leaf cells each Gaussian's k-sigma box meets
 (sorted cell keys, or a chunk's dense cell box), counted then filled in parallel, grouped by cell
 with a counting sort; and the groups' reach in cells (the chunks' Gaussians are gathered by
 error_lattice.gather_split)."""

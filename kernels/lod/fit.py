@@ -19,14 +19,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import parallel_njit, prange
-from .error import (
+from .error_pairs import distinct_sigmas
+from .mixture import (
     CELLS_PER_TASK,
     axis_tables,
     cell_residual,
     gaussian_terms,
     pair_voxels,
 )
-from .error_pairs import distinct_sigmas
 
 OMEGA = 1.6  # over-relaxation (< 2)
 NONE, S1, SHARE = 0, 1, 2  # what a pass sums per pair beside A^T r (_pass)
@@ -118,7 +118,7 @@ def fit_weights(st, w, sign, cg_steps, mm_steps, omega=OMEGA):
     """Improve the weights w (float64; a new array is returned): cg_steps of conjugate gradients
     on the normal equations (Jacobi-preconditioned by diag(A^T A 1), unconstrained), the sign clip,
     then mm_steps projected MM steps, each monotone, and a last pass that only measures.
-    st: error.pair_lists output (plus, optionally, axis_lattice's tables as "tables"); sign:
+    st: mixture.pair_lists output (plus, optionally, axis_lattice's tables as "tables"); sign:
     +1 / -1 / 0 per Gaussian (0: the weight stays 0).
     Returns (w, per-cell residuals (C, 512), per-cell SSE, per-cell max |r|, per-Gaussian share of
     the SSE)."""

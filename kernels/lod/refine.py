@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import parallel_njit, prange
-from .error import DEFAULT_K, axis_terms, cell_mixture, cell_residual, pair_voxels, setup
+from .mixture import DEFAULT_K, axis_terms, cell_mixture, cell_residual, pair_voxels, setup
 from .weights import amplitudes64, factors_from_codes, quantize_factors
 
 FMAX = 8.0  # largest amplitude factor (an isolated voxel needs ~3.4 at sigma = 0.6 voxel)

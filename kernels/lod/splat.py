@@ -22,8 +22,8 @@ import numpy as np
 
 from ..jit import njit, parallel_njit, prange
 from ..vdb.griddata import GridData
-from .error import _NO_LATTICE, DEFAULT_K, _eval_cells, axis_tables, mixture_chunks
 from .error_pairs import chunk_pairs, distinct_sigmas, group_boxes
+from .mixture import _NO_LATTICE, DEFAULT_K, _eval_cells, axis_tables, mixture_chunks
 
 SPACINGS = (1, 2, 4, 8)
 STEP = 1.0  # a ray step of one lattice cell resolves the field: the lattice follows the Gaussians' scale
@@ -166,7 +166,7 @@ _NO_REF = np.zeros((1, 512), np.float32)  # _eval_cells' reference: no voxel is 
 def _chunks(gset, s, wv, k, cells, chunk):
     """Per chunk of cells (sorted by key, so by x): (a, b, _eval_cells' arguments after corg,
     cmask, cref). On the voxel lattice (spacing 1), the field error's own evaluation
-    (error.mixture_chunks: its lattice classes and axis tables); coarser, the Gaussians of the
+    (mixture.mixture_chunks: its lattice classes and axis tables); coarser, the Gaussians of the
     groups whose boxes reach the chunk's x span, in the set's order, on pair lists."""
     chunk = max(1, int(chunk))
     if s == 1 and hasattr(gset, "n_leaf_groups"):

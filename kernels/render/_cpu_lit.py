@@ -269,8 +269,8 @@ def centre_gradients(cstart, pg, cg_start, cg_items, mu, inv, fw, k2, out):
 def lit_gradients(mu, inv, fw, first, k):
     """(m, 4) Gaussians.grad for the Gaussians of every object (first: each object's first row):
     centre_gradients over the leaf cells holding their centres, pairs as the field error lists
-    them (kernels.lod.error.pair_lists: each Gaussian in every cell its k-sigma box meets)."""
-    from ..lod.error import cell_keys, pair_lists
+    them (kernels.lod.mixture.pair_lists: each Gaussian in every cell its k-sigma box meets)."""
+    from ..lod.mixture import cell_keys, pair_lists
 
     out = np.zeros((mu.shape[0], 4))
     for ob in range(len(first) - 1):

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from kernels.lod import build_lod, field_error
-from kernels.lod import error as E
 from kernels.lod import error_lattice as L
 from kernels.lod import error_lattice_sums as S
+from kernels.lod import mixture as E
 from kernels.lod.synthetic import random_sparse_grid
 from tests.kernels.test_lod_stream import with_tiles
 

@@ -206,7 +206,7 @@ def test_fit_pass_matches_dense_sums(lattice):
     """The fit's pass (axis terms made once per pair, from tables on the half-voxel lattice) gives
     the normal equations' sums of a dense matrix; the tables and computed terms agree bit for bit."""
     from kernels.lod import fit
-    from kernels.lod.error import setup
+    from kernels.lod.mixture import setup
 
     g = random_sparse_grid(5, n_leaves=6, span=2, density=0.6)
     gs = build_lod(g, "medium")

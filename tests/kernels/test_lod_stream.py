@@ -8,7 +8,7 @@ import pytest
 
 from kernels.lod import build_lod, encode_compact, field_error
 from kernels.lod import encoding as enc_mod
-from kernels.lod import error as E
+from kernels.lod import mixture as E
 from kernels.lod.synthetic import random_sparse_grid
 
 

@@ -1,4 +1,5 @@
-"""Field error of a Gaussian mixture against the voxels, exactly, at every active voxel centre.
+"""The Gaussian mixture evaluated at the voxels, and its field error against them, exactly, at every
+active voxel centre.
 
 s(x) = sum_i value_i amplitude_i exp(-1/2 sum_k ((x_k - c_ik)/sigma_ik)^2), each Gaussian truncated
 to its k-sigma ellipsoid (k = 4 by default: the cut-off is exp(-8) = 3.4e-4 of the peak; the renderer
