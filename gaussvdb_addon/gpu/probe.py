@@ -92,8 +92,3 @@ def _child():
     lines = [ln for ln in res.stderr.splitlines() if ln.strip() and "EGL Error" not in ln]
     tail = lines[-1].strip() if lines else "no output"
     return False, f"no GPU context: a probe process exited with {res.returncode} ({tail[:120]})"
-
-
-def reset():
-    """Forget the cached answer (tests)."""
-    _ANSWER.clear()

@@ -2,8 +2,6 @@
 
 import struct
 
-import numpy as np
-
 _SCALAR = {"bool": "<?", "int32": "<i", "int64": "<q", "float": "<f", "double": "<d",
            "vec3i": "<3i", "vec3s": "<3f", "vec3d": "<3d", "vec2i": "<2i", "vec2s": "<2f",
            "vec2d": "<2d"}
@@ -57,10 +55,3 @@ def read_metamap(cur, what="metadata"):
     finally:
         cur.pos = pos
     return meta
-
-
-def as_bbox(meta):
-    lo, hi = meta.get("file_bbox_min"), meta.get("file_bbox_max")
-    if isinstance(lo, tuple) and isinstance(hi, tuple):
-        return np.array(lo, np.int64), np.array(hi, np.int64)
-    return None
