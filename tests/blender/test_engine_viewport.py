@@ -109,7 +109,7 @@ def test_viewport_camera_equals_final_camera(bpy_module, scene, kind, fit, size,
     """Region matrices as Blender builds them for the camera view (view = inverse camera matrix,
     window = the camera's projection for the region size) give the final render's rays."""
     bpy = bpy_module
-    cm, vp = _mod("engine.camera"), _mod("engine.viewport")
+    cm = _mod("engine.camera")
     w, h = size
     ob = add_camera(bpy, scene, (3.0, -8.0, 2.5), (1.2, 0.1, 0.4),
                     ortho_scale=7.0 if kind == "ORTHO" else None, lens=35.0)
