@@ -243,10 +243,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--no-error", action="store_true", help="skip the field error")
     ap.add_argument("--threads", type=cli_errors.threads, help="numba threads (0: all)")
     for k, v in DEFAULTS.items():
-        kind = (cli_errors.nonnegative if k in ("tolerance", "max_error") else
-                cli_errors.on_off if isinstance(v, bool) else type(v))
+        parse = (cli_errors.nonnegative if k in ("tolerance", "max_error") else
+                 cli_errors.on_off if isinstance(v, bool) else type(v))
         ap.add_argument("--" + k.replace("_", "-"), default=None, help=f"threshold (default {v})",
-                        type=kind)
+                        type=parse)
     a = ap.parse_args(argv)
     if a.threads:
         import numba

@@ -65,7 +65,7 @@ PASS_LAYOUT = {"Depth": (1, "Z", "VALUE"), "Value": (1, "X", "VALUE")}
 
 
 def wanted_passes(view_layer):
-    """(name, channels, channel ids, kind) of the view layer's extra passes (View Layer > Passes)."""
+    """(name, channels, channel ids, pass type) of the view layer's extra passes (View Layer > Passes)."""
     from .blender_settings import passes
 
     return [(name, *PASS_LAYOUT[name]) for name in passes(view_layer)]
@@ -75,8 +75,8 @@ def register_passes(engine, scene, renderlayer):
     if scene is None or renderlayer is None:
         return
     engine.register_pass(scene, renderlayer, "Combined", 4, "RGBA", "COLOR")
-    for name, ch, chid, kind in wanted_passes(renderlayer):
-        engine.register_pass(scene, renderlayer, name, ch, chid, kind)
+    for name, ch, chid, pass_type in wanted_passes(renderlayer):
+        engine.register_pass(scene, renderlayer, name, ch, chid, pass_type)
 
 
 def announce_compile(engine):
@@ -180,7 +180,7 @@ def _draw(engine, depsgraph, device, rscene, camera, tf, region, finish):
              for name, *_ in wanted_passes(depsgraph.view_layer)}
     result = engine.begin_result(0, 0, w, h, layer=layer_name)
     layer = result.layers[0]
-    for name, ch, chid, _kind in wanted_passes(depsgraph.view_layer):
+    for name, ch, chid, _pass_type in wanted_passes(depsgraph.view_layer):
         if layer.passes.find(name) < 0:
             engine.end_result(result, cancel=True)
             engine.add_pass(name, ch, chid, layer=layer_name)

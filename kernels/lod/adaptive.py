@@ -105,7 +105,7 @@ def _boxes(kept, values, order, nodes):
     nchild = np.empty(m, np.int64)
     node_boxes(kept, values, order, nleaf, nxyz, ne, box["c2"], box["ext"], box["nvox"],
                box["val"], nchild)
-    box["kind"] = (box["nvox"] == np.prod(box["ext"].astype(np.int64), 1)).astype(np.uint8)
+    box["full_block"] = (box["nvox"] == np.prod(box["ext"].astype(np.int64), 1)).astype(np.uint8)
     return box, nchild
 
 
@@ -150,7 +150,7 @@ def _gaussians(box, tbox, nt, is_ls, scale):
     if nt:
         box = {k: np.concatenate([box[k], tbox[k]]) for k in box}
     out = W.new_gaussians(len(box["nvox"]))
-    W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["kind"],
+    W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["full_block"],
                          len(box["nvox"]) - nt, False, scale, out, 0)
     return out, W.level_set_distances(out) if is_ls else None
 

@@ -72,7 +72,7 @@ def _tile_boxes(grid, t_act, band_thr):
     box = dict(c2=np.repeat((s - 1)[:, None], 3, 1).astype(np.int16),
                ext=np.repeat(s[:, None], 3, 1).astype(np.int16),
                nvox=np.minimum(s ** 3, np.iinfo(np.int32).max).astype(np.int32),
-               val=t_val, kind=np.zeros(len(s), np.uint8))
+               val=t_val, full_block=np.zeros(len(s), np.uint8))
     return t_or, box
 
 
@@ -154,9 +154,9 @@ def build_steps(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_ba
     if preset == "merged" or merge:  # the merge pass works on boxes; Gaussians after it
         box = dict(c2=np.empty((m_leaf, 3), np.int16), ext=np.empty((m_leaf, 3), np.int16),
                    nvox=np.empty(m_leaf, np.int32), val=np.empty(m_leaf, np.float32),
-                   kind=np.empty(m_leaf, np.uint8))
+                   full_block=np.empty(m_leaf, np.uint8))
         K["boxes"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, box["c2"],
-                   box["ext"], box["nvox"], box["val"], box["kind"])
+                   box["ext"], box["nvox"], box["val"], box["full_block"])
         group = np.repeat(np.arange(n_leaf, dtype=np.int64), counts[nz])
         if nt:
             box = {k: np.concatenate([box[k], tbox[k]]) for k in box}
@@ -181,7 +181,7 @@ def build_steps(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_ba
         out = W.new_gaussians(m_leaf + nt)
         K["fill"](kept, values, order, starts, code, thr_sp, thr_v * thr_v, paper, scale, out)
         if nt:
-            W.boxes_to_gaussians(tbox["c2"], tbox["ext"], tbox["nvox"], tbox["val"], tbox["kind"],
+            W.boxes_to_gaussians(tbox["c2"], tbox["ext"], tbox["nvox"], tbox["val"], tbox["full_block"],
                                  0, paper, scale, out, m_leaf)
         gcount = np.concatenate([counts[nz], np.ones(nt, np.int64)]) if nt else counts[nz]
         gs = _gaussian_set(grid, origins, gcount, out, n_leaf, scale, weights, params)
@@ -224,7 +224,7 @@ class _Boxes:
             origins = origins[used]
         gcount = np.bincount(group, minlength=len(origins))
         out = W.new_gaussians(len(group))
-        W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["kind"],
+        W.boxes_to_gaussians(box["c2"], box["ext"], box["nvox"], box["val"], box["full_block"],
                              len(group) - self.nt, self.paper, self.scale, out, 0)
         return _gaussian_set(self.grid, origins, gcount, out, n_leaf, self.scale, self.weights,
                              self.params)

@@ -27,7 +27,7 @@ DEFAULT_MERGE_TOL = 0.02
 
 def merge_blocks(group, origins, n_leaf_groups, box, value_range, merge_tol=DEFAULT_MERGE_TOL,
                  exclude=None):
-    """group: int64 (M,) group of each box; box: dict c2/ext/nvox/val/kind; exclude: bool (M,),
+    """group: int64 (M,) group of each box; box: dict c2/ext/nvox/val/full_block; exclude: bool (M,),
     boxes that may not be the centre of a merge. Returns (group, box, n, centres): centres are the
     merged runs' centre boxes (indices into the input boxes)."""
     none = np.zeros(0, np.int64)
@@ -75,7 +75,7 @@ def merge_blocks(group, origins, n_leaf_groups, box, value_range, merge_tol=DEFA
     new["ext"][centres] = (3 * ec)[:, None].astype(new["ext"].dtype)
     new["nvox"][centres] = (27 * ec ** 3).astype(np.int32)
     new["val"][centres] = mean[run_of_centre].astype(np.float32)
-    new["kind"][centres] = 1
+    new["full_block"][centres] = 1
     new = {k: a[keep] for k, a in new.items()}
     return group[keep], new, len(runs), centres
 

@@ -12,8 +12,8 @@ Each Gaussian is described as a box of voxels in its leaf's local coordinates:
   ext  = hi - lo + 1 per axis (the box edge in voxels)
   nvox = active voxels represented (<= prod(ext); equal for full blocks)
   val  = mean value of those voxels
-  kind = 0 "active bbox" (Low leaf, variance cluster): paper sigma = max((hi - lo)/2, 1/2)
-         1 "full block" (dense-leaf block, 2^3 block, single voxel): paper sigma = ext/2
+  full_block = 0 "active bbox" (Low leaf, variance cluster): paper sigma = max((hi - lo)/2, 1/2)
+               1 "full block" (dense-leaf block, 2^3 block, single voxel): paper sigma = ext/2
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def _unpack(mask_row, bits):
 
 
 @njit(cache=True, inline="always")
-def _put(write, k, c2, ext, nvox, val, kind, lx, ly, lz, hx, hy, hz, n, s):
+def _put(write, k, c2, ext, nvox, val, full_block, lx, ly, lz, hx, hy, hz, n, s):
     if write:
         c2[k, 0] = lx + hx
         c2[k, 1] = ly + hy
@@ -53,25 +53,25 @@ def _put(write, k, c2, ext, nvox, val, kind, lx, ly, lz, hx, hy, hz, n, s):
         ext[k, 2] = hz - lz + 1
         nvox[k] = n
         val[k] = s / n
-        kind[k] = 0 if (n < (hx - lx + 1) * (hy - ly + 1) * (hz - lz + 1)) else 1
+        full_block[k] = 0 if (n < (hx - lx + 1) * (hy - ly + 1) * (hz - lz + 1)) else 1
 
 
 @njit(cache=True)
-def _block(write, k, c2, ext, nvox, val, kind, bits, vals, x0, y0, z0, e):
+def _block(write, k, c2, ext, nvox, val, full_block, bits, vals, x0, y0, z0, e):
     """One e^3 block at (x0, y0, z0); all voxels known active (dense leaf or full 2^3 cell)."""
     s = 0.0
     for x in range(x0, x0 + e):
         for y in range(y0, y0 + e):
             for z in range(z0, z0 + e):
                 s += vals[x * 64 + y * 8 + z]
-    _put(write, k, c2, ext, nvox, val, kind, x0, y0, z0, x0 + e - 1, y0 + e - 1, z0 + e - 1,
+    _put(write, k, c2, ext, nvox, val, full_block, x0, y0, z0, x0 + e - 1, y0 + e - 1, z0 + e - 1,
          e * e * e, s)
     if write:
-        kind[k] = 1
+        full_block[k] = 1
 
 
 @njit(cache=True)
-def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, kind, thr_sp, thr_v2,
+def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, full_block, thr_sp, thr_v2,
                stack):
     """Emit (write=True) or count (write=False) the Gaussians of one leaf starting at pos."""
     k = pos
@@ -88,23 +88,23 @@ def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, kind, t
                 lx, ly, lz = min(lx, x), min(ly, y), min(lz, z)
                 hx, hy, hz = max(hx, x), max(hy, y), max(hz, z)
                 s += vals[i]
-        _put(write, k, c2, ext, nvox, val, kind, lx, ly, lz, hx, hy, hz, nact, s)
+        _put(write, k, c2, ext, nvox, val, full_block, lx, ly, lz, hx, hy, hz, nact, s)
         if write:
-            kind[k] = 0  # always the bbox rule, even for a dense leaf (a sphere either way)
+            full_block[k] = 0  # always the bbox rule, even for a dense leaf (a sphere either way)
         return 1
     if dense and (scheme == MEDIUM or scheme == HIGH):
         e = 4 if scheme == MEDIUM else 2
         for x0 in range(0, 8, e):
             for y0 in range(0, 8, e):
                 for z0 in range(0, 8, e):
-                    _block(write, k, c2, ext, nvox, val, kind, bits, vals, x0, y0, z0, e)
+                    _block(write, k, c2, ext, nvox, val, full_block, bits, vals, x0, y0, z0, e)
                     k += 1
         return k - pos
     if scheme == HIGH:  # sparse: one Gaussian per active voxel, in voxel order
         for i in range(512):
             if bits[i]:
                 x, y, z = i >> 6, (i >> 3) & 7, i & 7
-                _put(write, k, c2, ext, nvox, val, kind, x, y, z, x, y, z, 1, vals[i])
+                _put(write, k, c2, ext, nvox, val, full_block, x, y, z, x, y, z, 1, vals[i])
                 k += 1
         return k - pos
     if scheme == MEDIUM:  # sparse: aligned 2^3 cells, full -> block, else its voxels singly
@@ -117,7 +117,7 @@ def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, kind, t
                         if not bits[x * 64 + y * 8 + z]:
                             full = False
             if full:
-                _block(write, k, c2, ext, nvox, val, kind, bits, vals, x0, y0, z0, 2)
+                _block(write, k, c2, ext, nvox, val, full_block, bits, vals, x0, y0, z0, 2)
                 k += 1
             else:
                 for x in range(x0, x0 + 2):
@@ -125,7 +125,7 @@ def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, kind, t
                         for z in range(z0, z0 + 2):
                             i = x * 64 + y * 8 + z
                             if bits[i]:
-                                _put(write, k, c2, ext, nvox, val, kind, x, y, z, x, y, z, 1,
+                                _put(write, k, c2, ext, nvox, val, full_block, x, y, z, x, y, z, 1,
                                      vals[i])
                                 k += 1
         return k - pos
@@ -175,10 +175,10 @@ def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, kind, t
         mv = sv / n
         vvar = max(sv2 / n - mv * mv, 0.0)
         if n == 1 or (spatial <= thr_sp and vvar <= thr_v2):
-            _put(write, k, c2, ext, nvox, val, kind, tlo[0], tlo[1], tlo[2], thi[0], thi[1],
+            _put(write, k, c2, ext, nvox, val, full_block, tlo[0], tlo[1], tlo[2], thi[0], thi[1],
                  thi[2], n, sv)
             if write:
-                kind[k] = 0
+                full_block[k] = 0
             k += 1
             continue
         ax = 0  # axis of largest spatial variance; ties -> lowest axis
@@ -349,7 +349,7 @@ def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, paper, s
         ext = np.empty((512, 3), np.int16)
         nvox = np.empty(512, np.int32)
         val = np.empty(512, np.float32)
-        kind = np.empty(512, np.uint8)
+        full_block = np.empty(512, np.uint8)
         for i in range(t * CHUNK, min(n, t * CHUNK + CHUNK)):
             if starts[i + 1] == starts[i]:
                 continue
@@ -358,23 +358,23 @@ def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, paper, s
                 continue
             nact = _unpack(kept[i], bits)
             cnt = _leaf_emit(scheme, bits, nact, values[order[i]], True, 0, c2, ext, nvox, val,
-                             kind, thr_sp, thr_v2, stack)
+                             full_block, thr_sp, thr_v2, stack)
             for q in range(cnt):
-                shape = gaussian_shape(ext[q, 0], ext[q, 1], ext[q, 2], kind[q],
+                shape = gaussian_shape(ext[q, 0], ext[q, 1], ext[q, 2], full_block[q],
                                        np.float64(nvox[q]), paper, scale)
                 put_centre(out, starts[i] + q, c2[q, 0], c2[q, 1], c2[q, 2], val[q])
                 put_shape(out, starts[i] + q, starts[i] + q + 1, shape, nvox[q])
 
 
 @parallel_njit(cache=True)
-def fill_boxes(kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val, kind):
+def fill_boxes(kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val, full_block):
     """Every leaf's boxes (for the merge pass, which works on boxes)."""
     n = order.shape[0]
     for i in prange(n):
         bits = np.empty(512, np.bool_)
         nact = _unpack(kept[i], bits)
         stack = np.empty((64, 6), np.int64)
-        _leaf_emit(scheme, bits, nact, values[order[i]], True, starts[i], c2, ext, nvox, val, kind,
+        _leaf_emit(scheme, bits, nact, values[order[i]], True, starts[i], c2, ext, nvox, val, full_block,
                    thr_sp, thr_v2, stack)
 
 

@@ -22,11 +22,11 @@ DEFAULT_SIGMA_FACTOR = 0.6
 TWO_PI_32 = (2.0 * np.pi) ** 1.5
 
 
-def size_codes(ext, kind, weights):
+def size_codes(ext, full_block, weights):
     ext = ext.astype(np.int32)
     if weights == "paper":
         bbox_rule = np.maximum(ext - 1, 1)
-        return np.where((kind == 0)[:, None], bbox_rule, ext).astype(np.int32)
+        return np.where((full_block == 0)[:, None], bbox_rule, ext).astype(np.int32)
     return ext
 
 
@@ -82,10 +82,10 @@ def new_gaussians(m):
 
 
 @njit(cache=True, inline="always")
-def gaussian_shape(ex, ey, ez, kind, vox, paper, scale):
-    """Size codes, sigmas and amplitude of a box: edge e per axis, kind (see schemes.py), vox =
+def gaussian_shape(ex, ey, ez, full_block, vox, paper, scale):
+    """Size codes, sigmas and amplitude of a box: edge e per axis, full_block (see schemes.py), vox =
     the voxels it stands for (float64: a 4096^3 tile does not fit int32)."""
-    bbox_rule = paper and kind == 0
+    bbox_rule = paper and full_block == 0
     cx = max(ex - 1, 1) if bbox_rule else ex
     cy = max(ey - 1, 1) if bbox_rule else ey
     cz = max(ez - 1, 1) if bbox_rule else ez
@@ -123,7 +123,7 @@ def put_shape(out, j0, j1, shape, nvox):
 
 
 @njit(cache=True)
-def boxes_to_gaussians(c2, ext, nvox, val, kind, first_tile, paper, scale, out, at):
+def boxes_to_gaussians(c2, ext, nvox, val, full_block, first_tile, paper, scale, out, at):
     """Boxes -> Gaussians at out rows at, at + 1, ... (values: the boxes' means; a level set's:
     level_set_distances); boxes from first_tile on are tiles, whose
     true volume (up to 4096^3) does not fit nvox. Serial: tiles are few, and the merge pass that
@@ -133,7 +133,7 @@ def boxes_to_gaussians(c2, ext, nvox, val, kind, first_tile, paper, scale, out, 
             vox = np.float64(ext[k, 0]) * np.float64(ext[k, 1]) * np.float64(ext[k, 2])
         else:
             vox = np.float64(nvox[k])
-        shape = gaussian_shape(ext[k, 0], ext[k, 1], ext[k, 2], kind[k], vox, paper, scale)
+        shape = gaussian_shape(ext[k, 0], ext[k, 1], ext[k, 2], full_block[k], vox, paper, scale)
         put_centre(out, at + k, c2[k, 0], c2[k, 1], c2[k, 2], val[k])
         put_shape(out, at + k, at + k + 1, shape, nvox[k])
 
