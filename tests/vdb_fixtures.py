@@ -109,7 +109,7 @@ class _Enc:
         return arr_bytes
 
     def values(self, values, active, bg):
-        """Inverse of codec.read_node_values (writeCompressedValues)."""
+        """Inverse of read_node_values (writeCompressedValues)."""
         et = self.et_out
         full = et.full
         vals = np.ascontiguousarray(values, full).reshape(len(active), et.ncomp)
@@ -175,7 +175,7 @@ def _tree(cur, enc, flags_in):
         cm = cur.array(np.uint8, n // 8).copy()
         vm = cur.array(np.uint8, n // 8).copy()
         active = np.unpackbits(vm, bitorder="little").astype(bool)
-        vals = codec.read_node_values(cur, n, active, flags_in, et, bg)
+        vals = read_node_values(cur, n, active, flags_in, et, bg)
         out.extend([cm.tobytes(), vm.tobytes(), enc.values(vals, active, bg)])
         kids = int(np.unpackbits(cm).sum())
         if log2 == 4:
@@ -195,7 +195,7 @@ def _tree(cur, enc, flags_in):
     for m in leaf_masks:
         assert bytes(cur.bytes(64)) == m.tobytes()
         active = np.unpackbits(m, bitorder="little").astype(bool)
-        vals = codec.read_node_values(cur, 512, active, flags_in, et, bg)
+        vals = read_node_values(cur, 512, active, flags_in, et, bg)
         out.extend([m.tobytes(), enc.values(vals, active, bg)])
     return topo, b"".join(out)
 
@@ -519,3 +519,33 @@ def write_fire_like(path, background=0.25):
     t.prune()
     ov.write(str(path), grids=[d, t])
     return path
+
+
+def read_node_values(cur, nslots, active, flags, et, background):
+    """Decode all ``nslots`` values of one node (the reader decodes leaves in bulk; the
+    transcoder here one node at a time); ``active`` is its value mask as a bool array.
+
+    Returns (values (nslots, ncomp) full dtype). Inactive slots are rebuilt from the metadata code.
+    """
+    code, val0, val1, sel, data = codec.read_node_parts(cur, nslots, int(np.count_nonzero(active)),
+                                                        flags, et)
+    count = len(data)
+    if count == nslots:
+        return data
+    val0, val1 = codec.inactive_values(code, val0, val1, background, et)
+    if sel is None:
+        out = np.empty((nslots, et.ncomp), et.full)
+        out[:] = val0
+    else:
+        sel = np.unpackbits(sel, bitorder="little")
+        out = np.where(sel[:, None].astype(bool), val1, val0).astype(et.full)
+    if count:
+        out[active] = data
+    return out
+
+
+def bits_from_masks(masks):
+    """uint64 (N, 8) leaf masks -> bool (N, 512): voxel n at bit n & 63 of word n >> 6."""
+    m = np.asarray(masks, dtype=np.uint64)
+    b = (m[:, :, None] >> np.arange(64, dtype=np.uint64)) & np.uint64(1)
+    return b.reshape(len(m), 512).astype(bool)

@@ -36,11 +36,6 @@ def is_loaded(name) -> bool:
     return name in _FINAL
 
 
-def forget():
-    """Drop the final-render devices, as a new session starts without them."""
-    _FINAL.clear()
-
-
 def gpu_usable(engine_class):
     """(ok, text): whether a render now can run the GPU device: the probe passed and the
     engine class was registered with a GPU context (gpu_choice)."""

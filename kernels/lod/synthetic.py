@@ -52,12 +52,6 @@ def masks_from_bits(bits):
     return w.astype(np.uint64)
 
 
-def bits_from_masks(masks):
-    m = np.asarray(masks, dtype=np.uint64)
-    b = (m[:, :, None] >> np.arange(64, dtype=np.uint64)) & np.uint64(1)
-    return b.reshape(len(m), 512).astype(bool)
-
-
 def make_grid(leaf_origins, leaf_bits, leaf_values, *, grid_class="fog_volume", index_to_world=None,
               tiles=(), background=0.0, name="density"):
     leaf_origins = np.asarray(leaf_origins, np.int32).reshape(-1, 3)

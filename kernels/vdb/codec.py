@@ -154,25 +154,3 @@ def inactive_values(code, val0, val1, background, et):
     if val1 is None:
         val1 = bg
     return val0, val1
-
-
-def read_node_values(cur, nslots, active, flags, et, background):
-    """Decode all ``nslots`` values of one node; ``active`` is its value mask as a bool array.
-
-    Returns (values (nslots, ncomp) full dtype). Inactive slots are rebuilt from the metadata code.
-    """
-    code, val0, val1, sel, data = read_node_parts(cur, nslots, int(np.count_nonzero(active)),
-                                                  flags, et)
-    count = len(data)
-    if count == nslots:
-        return data
-    val0, val1 = inactive_values(code, val0, val1, background, et)
-    if sel is None:
-        out = np.empty((nslots, et.ncomp), et.full)
-        out[:] = val0
-    else:
-        sel = np.unpackbits(sel, bitorder="little")
-        out = np.where(sel[:, None].astype(bool), val1, val0).astype(et.full)
-    if count:
-        out[active] = data
-    return out

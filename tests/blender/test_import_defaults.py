@@ -193,7 +193,7 @@ def test_compile_time_is_reported_apart(bpy_module, scene, tmp_path):
     make_object(bpy, "Cloud", lattice(8, 8, 8), values=np.linspace(0, 1, 512))
     add_camera(bpy, scene, (3.5, -40.0, 3.5), (1.5707963, 0.0, 0.0))
     setup_render(scene, 24, 16)
-    _mod("gaussvdb_addon.engine.devices").forget()  # as in a new session: the next render loads its device
+    _mod("gaussvdb_addon.engine.devices")._FINAL.clear()  # as in a new session: the next render loads its device
     eng = FakeEngine()
     fr.render(eng, bpy.context.evaluated_depsgraph_get())
     assert not eng.errors

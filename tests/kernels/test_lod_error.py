@@ -2,10 +2,11 @@
 compact encoding's size and the paper storage model."""
 import numpy as np
 import pytest
+from vdb_fixtures import bits_from_masks
 
 from kernels.lod import build_lod, decode_compact, encode_compact, encoded_nbytes, field_error, paper_model_bytes
 from kernels.lod.gridprep import effective_masks
-from kernels.lod.synthetic import bits_from_masks, grid_from_dense, random_sparse_grid
+from kernels.lod.synthetic import grid_from_dense, random_sparse_grid
 
 
 def brute_mixture(gs, pts, k=4.0):

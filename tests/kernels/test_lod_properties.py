@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from vdb_fixtures import bits_from_masks
 
 from kernels.lod import PRESETS, build_lod, decode_compact, encode_compact, field_error
 from kernels.lod.gridprep import effective_masks
-from kernels.lod.synthetic import bits_from_masks, random_sparse_grid
+from kernels.lod.synthetic import random_sparse_grid
 
 NON_OVERLAPPING = PRESETS  # every scheme here is a partition of the (kept) active voxels
 
