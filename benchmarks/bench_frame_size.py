@@ -71,7 +71,7 @@ def main(argv=None):
     for path in a.files:
         grid = cli_grids.choose_grid(path, None, False)
         bpy.ops.wm.read_homefile(use_empty=True)
-        objs = importer.import_vdb(os.path.abspath(path), grids=[grid], lods=(a.lod,), weights="field",
+        objs = importer.import_vdb(os.path.abspath(path), grids=[grid], lods=(a.lod,),
                                    collection=bpy.context.scene.collection, compute_error=False)
         name = os.path.basename(path)
         print(f"{name} ({grid}, {a.lod}); F12 = bpy.ops.render.render, one call = device.render")

@@ -36,7 +36,7 @@ def parse(argv):
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--file", default=SAMPLE, help="a .vdb file (default: the bundled sample)")
     ap.add_argument("--grids", default="", help="comma-separated grid names (default: every scalar grid)")
-    ap.add_argument("--weights", default="field", choices=WEIGHTS)
+    ap.add_argument("--weights", default=WEIGHTS[0], choices=WEIGHTS)
     ap.add_argument("--size", default=(320, 240), type=png_size,
                     help="PNG size WxH of the renders (0: no renders)")
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "demo"), help="folder for the PNGs")

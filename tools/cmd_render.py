@@ -33,7 +33,7 @@ VIEW = (0.35, 1.0, -0.3)  # viewing direction: from the front, a little from the
 
 
 def parse(argv):
-    from kernels import mode_names
+    from kernels import lod_names, mode_names
     from kernels.lod import PRESETS, WEIGHTS
     from kernels.render import colormap_names
 
@@ -45,7 +45,7 @@ def parse(argv):
                    "active voxels)")
     p.add_argument("--vector-magnitude", action="store_true",
                    help="vec3 grids (velocity) count as their magnitude, as in the importer")
-    p.add_argument("--lod", default="medium", choices=PRESETS, help="LOD preset")
+    p.add_argument("--lod", default=lod_names.DEFAULT, choices=PRESETS, help="LOD preset")
     p.add_argument("--mode", default=mode_names.DEFAULT, choices=mode_names.NAMES)
     p.add_argument("--colormap", default="viridis", type=str.lower, choices=colormap_names())
     p.add_argument("--size", default=(640, 480), type=cli_errors.size, help="WxH pixels (640x480)")
@@ -53,7 +53,7 @@ def parse(argv):
     p.add_argument("--threads", type=cli_errors.threads, default=0, help="CPU threads (0: all)")
     p.add_argument("--density", type=cli_errors.nonnegative, default=None,
                    help="extinction per world unit (default: 10 per voxel-box diagonal, scaled to the grid)")
-    p.add_argument("--weights", default="field", choices=WEIGHTS)
+    p.add_argument("--weights", default=WEIGHTS[0], choices=WEIGHTS)
     p.add_argument("--transparent", action="store_true", help="transparent film (alpha kept)")
     p.add_argument("--log-scale", action="store_true", help="log10 transfer function")
     p.add_argument("--legend", action="store_true", help="draw the colour legend (scalar bar)")

@@ -137,7 +137,8 @@ class GaussVDBObjectSettings(ClipProps, SurfaceProps, VolumeShadingProps, ColorG
     value_type: StringProperty(name="Value Type")
     lods: StringProperty(name="LODs Held",
                          description="Comma-separated LOD presets stored on the object, in gs_lod order")
-    weight_rule: EnumProperty(name="Weights", items=lod_names.weight_items(), default="field",
+    weight_rule: EnumProperty(name="Weights", items=lod_names.weight_items(),
+                              default=lod_names.WEIGHTS[0],
                               description="How the Gaussians' amplitudes were set at import")
     # Files from before weight_rule hold the rule as text here (io/versioning moves it over)
     weights: StringProperty(name="Weights (Old Files)", default="", options={"HIDDEN"})
