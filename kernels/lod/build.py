@@ -7,7 +7,7 @@ import copy
 import numpy as np
 
 from .. import lod_names
-from . import clustering, error, levelset, schemes
+from . import clustering, levelset, mixture, schemes
 from . import weights as W
 from .adaptive import adaptive_rounds
 from .gaussian_set import GaussianSet
@@ -165,11 +165,11 @@ def build_steps(grid, preset=lod_names.DEFAULT, weights="field", *, level_set_ba
         g_m, b_m, params["merged"], centres = clustering.merge_blocks(group, origins, n_leaf, box,
                                                                       vr, p["merge_tol"])
         if params["merged"] and p["merge_check"] and not paper and not is_ls:
-            cells = clustering.merge_cells(group, origins, box, centres, scale, error.DEFAULT_K)
+            cells = clustering.merge_cells(group, origins, box, centres, scale, mixture.DEFAULT_K)
             near = _leaves_in(grid, cells[1])  # where the merges can change the field
             undo = clustering.field_checked_merge(
                 cells, boxes.cell_errors(group, box, near), boxes.cell_errors(g_m, b_m, near),
-                error.nrmse_denominator(False, vmin, vmax), p["merge_tol"], len(centres))
+                mixture.nrmse_denominator(False, vmin, vmax), p["merge_tol"], len(centres))
             params["merges_undone"] = int(undo.sum())
             if undo.any():
                 exclude = np.zeros(len(group), bool)
@@ -230,14 +230,14 @@ class _Boxes:
                              self.params)
 
     def cell_errors(self, group, box, leaves):
-        return error.cell_errors(leaves, self.gaussian_set(group, box))
+        return mixture.cell_errors(leaves, self.gaussian_set(group, box))
 
 
 def _leaves_in(grid, keys):
-    """A copy of grid with only the leaves whose cell keys (error.cell_keys) are in keys, and no
+    """A copy of grid with only the leaves whose cell keys (mixture.cell_keys) are in keys, and no
     tiles."""
     lo = np.asarray(grid.leaf_origins, np.int64).reshape(-1, 3)
-    sel = np.isin(error.cell_keys(lo >> 3), keys)
+    sel = np.isin(mixture.cell_keys(lo >> 3), keys)
     sub = copy.copy(grid)
     sub.leaf_origins = np.asarray(grid.leaf_origins)[sel]
     sub.leaf_masks = np.asarray(grid.leaf_masks)[sel]

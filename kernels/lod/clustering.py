@@ -83,7 +83,7 @@ def merge_blocks(group, origins, n_leaf_groups, box, value_range, merge_tol=DEFA
 def field_checked_merge(cells, err_before, err_after, scale, merge_tol, m):
     """The merges to undo: those whose Gaussian's support meets a leaf cell where the merges
     raised the field's RMS error by more than merge_tol x scale (the NRMSE's denominator).
-    cells: merge_cells' (run, cell key) pairs; err_before / err_after: error.cell_errors of the
+    cells: merge_cells' (run, cell key) pairs; err_before / err_after: mixture.cell_errors of the
     Gaussians without / with the merges; m: the runs. Returns bool (m,): the runs to undo."""
     keys, sse0, sse1, npts = err_before[0], err_before[1], err_after[1], err_before[2]
     n = np.maximum(npts, 1.0)

@@ -116,7 +116,7 @@ def lattice_classes(gset, k):
 
 @njit(cache=True)
 def _axis_qe(diff, s, k2, q, e):
-    """q = d^2 and e = exp(-d^2 / 2) of d = diff / s, as error.axis_terms computes them (e = 0
+    """q = d^2 and e = exp(-d^2 / 2) of d = diff / s, as mixture.axis_terms computes them (e = 0
     beyond the cut)."""
     power = 1.0
     for i in range(diff.shape[0]):
@@ -259,7 +259,7 @@ def node_slots(grp, held, nper):
 @parallel_njit(cache=True)
 def gather_split(grp, gstart, origins, offsets, sigmas, values, amps, u, cls, rest, ce, nper,
                  slot, nodes):
-    """Centres and sigmas (float64, as GaussianSet.centers() and error.setup make them) and
+    """Centres and sigmas (float64, as GaussianSet.centers() and mixture.setup make them) and
     weights of the Gaussians of groups grp of no lattice class (classify's cls, rest), in order;
     with u (the set's distinct sigmas) also their doubled centres (int64) and sigma ids for the
     axis tables, and whether every such centre is on the half-voxel lattice. The class nodes of

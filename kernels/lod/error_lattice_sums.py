@@ -77,7 +77,7 @@ def _window(q, nb, slot, nodes, nper, nw, wr, wnode, nwm, W, colnz):
 
 @njit(cache=True)
 def _direct(q, k2, nw, qa, ea, nwm, W, acc):
-    """Node by node, as error._add_gaussian sums a Gaussian: (w e_x e_y) e_z within the cut."""
+    """Node by node, as mixture._add_gaussian sums a Gaussian: (w e_x e_y) e_z within the cut."""
     for tx in range(nw[q, 0]):
         for ty in range(nw[q, 1]):
             base = (tx * nwm + ty) * nwm
