@@ -54,7 +54,7 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
-    from kernels.render.device import CPUDevice
+    from kernels.render import CPUDevice
 
     a = parse(["--threads", str(args.threads)])  # the report's image size and view settings
     dev = CPUDevice()

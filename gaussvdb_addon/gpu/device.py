@@ -4,9 +4,9 @@ are uploaded once (geometry once per sync), then each render() call is one dispa
 rows and a readback; ``render_texture`` leaves the image on the GPU (the viewport draws it).
 
 Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, inout State st)``,
-its tables in gpu_layout.MODE_TABLES (geometry, frame), and an entry in MODES here. Frames this
-device does not draw (modes without an entry) are said in ``fallback(frame)``: frames the GPU
-cannot draw exactly (see there) go to the CPU device.
+its tables in gpu_layout.MODE_TABLES (geometry, frame), and its shader in the mode's entry of
+kernels/render/modes.py (``gpu``). Frames this device does not draw (modes without a shader) are
+refused; frames the GPU cannot draw exactly (``fallback(frame)``) go to the CPU device.
 
 Lit volumes are drawn in every mode that has them (reference, particles, field; paper has none):
 the shaders are then compiled with LIT (the Gaussian modes' shading code, common.glsl's
@@ -15,33 +15,31 @@ Volumes coloured by a second grid are drawn here in every mode too (their tables
 gpu_layout_color, added to every mode's; glsl/color.glsl).
 
 The Gaussian modes' screen-tile lists are built here on the GPU (tiles.py; the CPU device's frame
-then has none: ``tiles_elsewhere``); lists too long for the GPU come from the CPU device, and a
-frame too long for both is drawn by it. ``GPUDevice(gpu_tiles=False)`` uploads the CPU's lists.
+then has none: its begin_frame's ``lists_elsewhere``, Frame.tiles_elsewhere); lists too long for
+the GPU come from the CPU device, and a frame too long for both is drawn by it.
+``GPUDevice(gpu_tiles=False)`` uploads the CPU's lists.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections import namedtuple
 
 import numpy as np
 
-from ...kernels.mode_names import Mode
-from ...kernels.render import device as kdevice
 from ...kernels.render import (  # _gauss: the Gaussian modes' tables
+    bands,
     gpu_layout,
     gpu_layout_color,  # the volumes coloured by a second grid
     gpu_layout_gauss,
     gpu_layout_tiles,
+    modes,
 )
+from ...kernels.render.cpu_device import CPUDevice
+from ...kernels.render.device import Device, register_device
 from . import compute, context, tiles
 
-# glsl: the mode's file(s); defines: extra #defines (WALK: common.glsl's leaf walk and its tables;
-# ONE_PER_GROUP: one pixel per work group on llvmpipe)
-ModeSpec = namedtuple("ModeSpec", "glsl defines")
-MODES = {"reference": ModeSpec("reference.glsl", ("WALK",)),
-         "particles": ModeSpec(("gauss.glsl", "particles.glsl"), ("ONE_PER_GROUP",)),
-         "field": ModeSpec(("gauss.glsl", "field.glsl"), ("WALK", "ONE_PER_GROUP")),
-         "paper": ModeSpec(("gauss.glsl", "paper.glsl"), ("ONE_PER_GROUP",))}
+# the shaders of the modes this device draws (kernels/render/modes.py), by name
+MODES = {m.name.lower(): s.gpu for m, s in modes.SPECS.items() if s.drawn_as is None and s.gpu is not None}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 NO_LISTS = "no screen-tile lists"  # the fallback's word when neither device's lists fit
 
@@ -50,11 +48,11 @@ class NoLists(Exception):
     """The frame's screen-tile lists pass what the GPU and the CPU build: the CPU device draws it."""
 
 
-class GPUDevice(kdevice.Device):
+class GPUDevice(Device):
     name = "GPU"
 
     def __init__(self, threads=None, cache_dir=None, gpu_tiles=True, **kw):
-        self.cpu = kdevice.CPUDevice(threads=threads, cache_dir=cache_dir, **kw)
+        self.cpu = CPUDevice(threads=threads, cache_dir=cache_dir, **kw)
         self.gpu_tiles = bool(gpu_tiles)  # the Gaussian modes' screen-tile lists built here (tiles.py)
         self._geom = None  # (key, Tables, textures)
         self._up = None  # (frame key, Tables, textures)
@@ -67,12 +65,9 @@ class GPUDevice(kdevice.Device):
         self.stats["seconds_sync"] = self.cpu.stats.get("seconds_sync", 0.0)
 
     def begin_frame(self, scene, camera, tf):
-        self.cpu.tiles_elsewhere = self.gpu_tiles
-        frame = self.cpu.begin_frame(scene, camera, tf)
-        frame.tiles_on_gpu = (self.gpu_tiles and int(frame.mode) <= Mode.PAPER
-                              and frame.gauss.mu.shape[0] > 0)
-        if int(frame.mode) in (Mode.PARTICLES, Mode.PAPER) and gpu_layout_color.colored(frame):
-            frame.color_values = self.cpu.gacc.g_cval  # (the Gaussians' colours: gpu_layout_color)
+        frame = self.cpu.begin_frame(scene, camera, tf, lists_elsewhere=self.gpu_tiles)
+        if modes.spec(frame.mode).color == modes.GAUSSIANS and gpu_layout_color.colored(frame):
+            frame.color_values = self.cpu.color_values()  # (the Gaussians' colours: gpu_layout_color)
         self.stats["seconds_setup"] = self.cpu.stats.get("seconds_setup", 0.0)
         return frame
 
@@ -89,13 +84,12 @@ class GPUDevice(kdevice.Device):
     @staticmethod
     def fallback(frame):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
-        if int(frame.mode) <= Mode.PAPER:
+        if modes.spec(frame.mode).draws == modes.GAUSSIANS:
             return gpu_layout_gauss.unsupported(frame)
         return None
 
     def _cpu_render(self, *args, **kw):
         """The CPU device's image (its frame then has its own screen-tile lists)."""
-        self.cpu.tiles_elsewhere = False
         return self.cpu.render(*args, **kw)
 
     def _overflow(self, scene, camera, tf, rgba, dv, r0, c0):
@@ -109,7 +103,7 @@ class GPUDevice(kdevice.Device):
         return len(tiles)
 
     def _spec(self, frame):
-        name = Mode(int(frame.mode)).name.lower()
+        name = modes.spec(frame.mode).mode.name.lower()
         spec = MODES.get(name)
         if spec is None:
             raise ValueError(f"{name} mode is not yet on the GPU device (use the CPU device)")
@@ -119,7 +113,7 @@ class GPUDevice(kdevice.Device):
         """The frame's uploaded tables (geometry reused while the sync is the same)."""
         name, spec = self._spec(frame)
         geo_fn, frame_fn = gpu_layout.MODE_TABLES[name]
-        gkey = (self.cpu._sync_count, name, gpu_layout_gauss.lit(frame))
+        gkey = (self.cpu.geometry_version, name, gpu_layout_gauss.lit(frame))
         if self._geom is None or self._geom[0] != gkey:
             self._geom = None
             t = geo_fn(frame)
@@ -160,8 +154,7 @@ class GPUDevice(kdevice.Device):
         name, spec, arrays, tex, ints = self._tables(frame)
         extra = (("GPU_TILES",) if gpu_layout_gauss.on_gpu(frame) else ()) + (
             ("LIT",) if gpu_layout_gauss.lit(frame) else ())
-        spec = spec._replace(defines=spec.defines + extra)
-        spec = spec._replace(defines=spec.defines + gpu_layout_color.defines(arrays))
+        spec = dataclasses.replace(spec, defines=spec.defines + extra + gpu_layout_color.defines(arrays))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
@@ -177,7 +170,7 @@ class GPUDevice(kdevice.Device):
             self.stats = dict(self.cpu.stats, fallback=why)
             return out
         t_setup = self.stats["seconds_setup"]
-        r0, r1, c0, c1 = kdevice.region(frame, rows, cols)
+        r0, r1, c0, c1 = bands.region(frame, rows, cols)
         nr, nc = r1 - r0, c1 - c0
         rgba = np.zeros((nr, nc, 4), np.float32)
         dv = np.zeros((nr, nc, 4), np.float32)
@@ -185,24 +178,14 @@ class GPUDevice(kdevice.Device):
         step = STEP_ROWS if (progress or cancel) else max(nr, 1)
         cancelled = False
 
-        def draw():
-            nonlocal cancelled
-            a = 0
-            while a < nr:
-                if cancel is not None and cancel():
-                    cancelled = True
-                    return
-                b = min(nr, a + step)
-                out = self._dispatch(frame, (r0 + a, r0 + b), (c0, c1))
-                rgba[a:b] = compute.read(out[0])
-                dv[a:b] = compute.read(out[1])
-                a = b
-                if progress is not None:
-                    progress(a / nr)
+        def draw(a, b):
+            out = self._dispatch(frame, (r0 + a, r0 + b), (c0, c1))
+            rgba[a:b] = compute.read(out[0])
+            dv[a:b] = compute.read(out[1])
 
         if nr and nc:
             try:
-                context.run(draw)
+                cancelled = context.run(lambda: bands.draw_bands(nr, step, draw, progress, cancel))
             except NoLists:  # (a camera inside a dense volume): the CPU's leaf walk draws it
                 out = self._cpu_render(scene, camera, tf, rows=rows, cols=cols, progress=progress,
                                        cancel=cancel)
@@ -212,12 +195,8 @@ class GPUDevice(kdevice.Device):
         self.stats.update(seconds_setup=float(t_setup), seconds_render=float(time.perf_counter() - t0),
                           segments=0.0, cancelled=bool(cancelled), threads=1, gpu=self.renderer)
         self.stats.pop("fallback", None)
-        res = {"Combined": rgba}
-        if "Depth" in scene.passes:
-            res["Depth"] = np.ascontiguousarray(dv[..., 0])
-        if "Value" in scene.passes:
-            res["Value"] = np.ascontiguousarray(dv[..., 1])
-        return res
+        res = bands.passes(scene, rgba, dv[..., 0], dv[..., 1])
+        return {k: np.ascontiguousarray(v) for k, v in res.items()}
 
     def render_texture(self, scene, camera, tf):
         """The whole frame's Combined pass as a GPU texture (call inside a GPU context: view_draw);
@@ -231,12 +210,11 @@ class GPUDevice(kdevice.Device):
             return None
 
 
-def register_device():
+def register():
     """GPU in kernels.render.device's registry (available_devices lists it where the probe says yes)."""
     from . import probe
 
-    kdevice._REGISTRY["GPU"] = GPUDevice
-    kdevice._USABLE["GPU"] = lambda: probe.probe()[0]
+    register_device("GPU", GPUDevice, lambda: probe.probe()[0])
 
 
-register_device()
+register()

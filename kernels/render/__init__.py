@@ -2,10 +2,11 @@
 from . import clip
 from .camera import Camera, generate_rays
 from .colormaps import colormap, colormap_names, srgb_to_linear
-from .device import CPUDevice, Device, available_devices, get_device
+from .cpu_device import CPUDevice
+from .device import Device, available_devices, get_device, register_device
 from .scene import MODES, RenderObject, RenderScene
 from .transfer import TransferFunction, value_range, voxel_stats
 
 __all__ = ["clip", "Camera", "generate_rays", "colormap", "colormap_names", "srgb_to_linear", "CPUDevice",
-           "Device", "available_devices", "get_device", "MODES", "RenderObject",
+           "Device", "available_devices", "get_device", "register_device", "MODES", "RenderObject",
            "RenderScene", "TransferFunction", "value_range", "voxel_stats"]

@@ -44,6 +44,7 @@ from ._cpu_pieces import lut_rows, paper_piece, reference_piece  # noqa: F401  (
 from ._cpu_surface import mixture_normal, shade_hit
 from ._cpu_tiles import TILE
 from ._cpu_walk import clip_interval, walk_object
+from .modes import LEAF_TILE_MODES, PIECE_MODES, SCREEN_TILE_MODES
 from .packing import (
     SET_BG,
     SET_K,
@@ -195,8 +196,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
     nsteps = int(settings[SET_PAPER_STEPS])
     maxd = settings[SET_PAPER_DEPTH]
     t_start = accel.t_start
-    tiled = mode <= Mode.FIELD and t_start.shape[0] > 1
-    culled = mode == Mode.REFERENCE and t_start.shape[0] > 1  # leaves per tile (leaf_tiles)
+    tiled = mode in SCREEN_TILE_MODES and t_start.shape[0] > 1
+    culled = mode in LEAF_TILE_MODES and t_start.shape[0] > 1  # leaves per tile (leaf_tiles)
     ntx = (W + TILE - 1) // TILE
     w0 = min(c1, (c0 // TILE + 1) * TILE) - c0  # the first tile column's part of [c0, c1)
     st, ro, rd, rclip, sprev = scr.st, scr.ro, scr.rd, scr.rclip, scr.sprev
@@ -292,7 +293,7 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             sprev[ob, 1] = np.nan
         if n == 0:
             pass
-        elif mode >= Mode.PAPER:
+        elif mode in PIECE_MODES:
             trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd)
         else:
             if tiled:

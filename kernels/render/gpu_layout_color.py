@@ -4,7 +4,7 @@ glsl/color.glsl), plain numpy:
 - obj_color (gpu_layout.fold_rows, one texel per object): [colour map's transfer-function row
   (-1: coloured by its own grid), the colour grid's background (packing.Objects.cbg), 0, 0].
 - g_cval (gpu_layout.fold_scalars, particles and paper): each Gaussian's colour value (the CPU
-  device's colours come from them: device._gauss_weights), NaN where it has none.
+  device's colours come from them: frame_setup.gauss_weights), NaN where it has none.
 - Reference mode: the colour grids' bricks (packing.Accel.cbricks, on the same cells) go in the
   voxel atlas after the grid's own (gpu_layout.reference_geometry; cell c's at brick
   c + cbrick0, an int).
@@ -35,7 +35,7 @@ def frame_tables(frame) -> dict:
     rows[:, 0] = np.asarray(o.ctf)[:n]
     rows[:, 1] = np.where(rows[:, 0] >= 0, np.asarray(o.cbg)[:n], 0.0)
     out = {"obj_color": gpu_layout.fold_rows(rows)}
-    cv = getattr(frame, "color_values", None)
+    cv = frame.color_values
     if cv is not None:
         out["g_cval"] = gpu_layout.fold_scalars(np.asarray(cv, np.float32))
     return out

@@ -124,14 +124,15 @@ def frame_tiles(frame):
     or, for paper mode (whose CPU kernels walk the leaves), lists of the Gaussians with its
     weights built here once per frame; None when there are none (switched off, too many)."""
     from ._cpu_tiles import screen_tiles
-    from .device import MAX_TILE_ENTRIES
+    from .frame import NOT_BUILT
+    from .frame_setup import MAX_TILE_ENTRIES
+    from .modes import spec
     from .packing import SET_K
-    from .scene import Mode
 
-    if int(frame.mode) != Mode.PAPER:
+    if spec(frame.mode).screen_tiles:
         a = frame.accel
         return None if a.t_start.shape[0] <= 1 else (a.t_start, a.t_items, a.t_mask)
-    if not hasattr(frame, "gpu_tiles"):
+    if frame.gpu_tiles is NOT_BUILT:
         g = frame.gauss
         i2w = [np.linalg.inv(m) for m in frame.objects.w2i]
         t = screen_tiles(frame.cam, i2w, g.mu, g.inv, g.obj, g.w, frame.transfer.settings[SET_K],
@@ -158,7 +159,7 @@ def unsupported(frame) -> str | None:
 def on_gpu(frame):
     """Whether the device builds this frame's screen-tile lists itself (gpu/tiles.py): then
     they are not uploaded, and the entry bounds come in t_lb."""
-    return getattr(frame, "tiles_on_gpu", False)
+    return frame.tiles_elsewhere
 
 
 def overflow_tiles(depth, row0=0, col0=0):

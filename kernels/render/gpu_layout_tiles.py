@@ -56,7 +56,7 @@ def cpu_lists(frame):
     """The fallback when the GPU's lists do not fit its textures: the CPU's lists (_cpu_tiles.
     screen_tiles) as the same three tables; None when those pass MAX_TILE_ENTRIES too."""
     from ._cpu_tiles import screen_tiles
-    from .device import MAX_TILE_ENTRIES
+    from .frame_setup import MAX_TILE_ENTRIES
     from .gpu_layout_gauss import tile_tables
     from .packing import SET_K
 

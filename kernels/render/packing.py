@@ -13,7 +13,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..lod.levelset import surface_level
-from . import clip, gauss_pack, lights
+from . import clip, gauss_pack, lights, modes
 
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
@@ -115,12 +115,13 @@ def pack_transfer(scene, tfs) -> Transfer:
 def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=None) -> Objects:
     """ls rows: [0] 1 for a constant colour (rgb in [8:11]), else 0 and a colormap over the world
     coordinate [1:5] . (x, y, z, 1) of index points across [5:7]; [7] the voxel's world size.
-    Level sets in paper mode are shells (the paper has no surfaces); only volumes are lit, and
-    not in paper mode. The shadow grids are the device's to fill (no_shadows until then).
+    Level sets are surfaces where the mode draws them (modes: surfaces; else shells); only volumes
+    are lit, where the mode has lights. The shadow grids are the device's to fill (no_shadows until then).
     obj_ctf: color_functions' rows (None: no object coloured by a second grid)."""
     objs = scene.objects
     n = len(objs)
-    kind = np.array([(2 if o.surface and scene.mode != "paper" else 1) if o.is_level_set else 0
+    spec = modes.spec(scene.mode)
+    kind = np.array([(2 if o.surface and spec.surfaces else 1) if o.is_level_set else 0
                      for o in objs], np.int32)
     ls = np.zeros((n, 11))
     axes = {"x": 0, "y": 1, "z": 2}
@@ -137,7 +138,7 @@ def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=
         ls[k, 7] = voxel_world[k]
     step = np.full(n, float(scene.step))
     lit = np.array([(LIT_SHADOWS if o.shadows else LIT)
-                    if o.shading == "lit" and not o.is_level_set and scene.mode != "paper" else 0
+                    if o.shading == "lit" and not o.is_level_set and spec.lights else 0
                     for o in objs], np.int32)
     ctf = np.full(max(n, 1), -1, np.int32) if obj_ctf is None else np.asarray(obj_ctf, np.int32)
     cbg = np.zeros(max(n, 1))

@@ -89,20 +89,20 @@ def test_lists_past_the_gpu_limit_come_from_the_cpu(mods):
 def test_lists_past_both_limits_go_to_the_cpu_device(mods):
     """Lists too long for the GPU and for the CPU's lists too (a camera inside a dense volume):
     the CPU device draws the frame with its leaf walk, and says so."""
+    from bl_ext.user_default.gaussvdb.kernels.render import frame_setup  # the extension's own copy
     from references import GPU_MIN_DB, psnr
 
     from kernels.render import CPUDevice
 
     _, device, tiles = mods
-    kdevice = device.kdevice  # the extension's own copy of kernels.render.device
     sc = RenderScene(scenes()["fog"], mode="particles")
     want = CPUDevice().render(sc, CAM, TF)
     dev = device.GPUDevice()
-    keep = tiles.MAX_ENTRIES, kdevice.MAX_TILE_ENTRIES
-    tiles.MAX_ENTRIES = kdevice.MAX_TILE_ENTRIES = 10
+    keep = tiles.MAX_ENTRIES, frame_setup.MAX_TILE_ENTRIES
+    tiles.MAX_ENTRIES = frame_setup.MAX_TILE_ENTRIES = 10
     try:
         got = dev.render(sc, CAM, TF)
     finally:
-        tiles.MAX_ENTRIES, kdevice.MAX_TILE_ENTRIES = keep
+        tiles.MAX_ENTRIES, frame_setup.MAX_TILE_ENTRIES = keep
     assert dev.stats["fallback"] == device.NO_LISTS
     assert psnr(got["Combined"], want["Combined"]) >= GPU_MIN_DB

@@ -24,8 +24,7 @@ def scene():
 
 def deferred_frame():
     dev = CPUDevice()
-    dev.tiles_elsewhere = True
-    return dev, dev.begin_frame(scene(), CAM, TF)
+    return dev, dev.begin_frame(scene(), CAM, TF, lists_elsewhere=True)
 
 
 def test_inputs_read_back():
@@ -49,7 +48,6 @@ def test_starts_and_the_deferred_frame():
     dev, fr = deferred_frame()
     assert fr.accel.t_start.shape[0] <= 1  # no lists on the CPU: the GPU builds them
     key = fr.key
-    dev.tiles_elsewhere = False
     full = dev.begin_frame(scene(), CAM, TF)
     assert full.key != key and full.accel.t_start.shape[0] == L.tile_grid(full)[0] * L.tile_grid(full)[1] + 1
     want = LG.tile_tables(full.accel.t_start, full.accel.t_items, full.accel.t_mask)

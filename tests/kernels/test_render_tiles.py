@@ -4,9 +4,8 @@ from the tile lists gives the leaf walk's image."""
 import numpy as np
 import pytest
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, frame_setup, generate_rays
 from kernels.render import accel as accel_mod
-from kernels.render import device as device_mod
 from kernels.render.synthetic import gaussian_set
 
 
@@ -80,7 +79,7 @@ def test_tile_lists_over_budget_fall_back_to_the_walk(monkeypatch):
     objs = scene_objects()
     cam = CAMERAS["persp"](0.0)
     a = render(dev, objs, cam, "particles", True)
-    monkeypatch.setattr(device_mod, "MAX_TILE_ENTRIES", 10)
+    monkeypatch.setattr(frame_setup, "MAX_TILE_ENTRIES", 10)
     monkeypatch.setattr(accel_mod, "TILE_FANOUT", 0)
     start, *_ = dev._screen_tiles(0, RenderScene(objs), cam, np.ones(dev.gacc.g_mu.shape[0]))
     assert start.shape[0] == 1  # no lists: the kernels walk the leaves
