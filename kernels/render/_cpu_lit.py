@@ -14,11 +14,25 @@ import math
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
-from ._cpu_chords import CB, CG, CR, HQ, TS
 from ._cpu_math import _hot, _jit, erf_span, sample_color, whitened_chord
 from ._cpu_surface import brick_xyz, light_at, trilinear
 from ._cpu_walk import clip_interval, walk_object
-from .packing import LIT_SHADOWS, SET_K, SET_LIT_THRESHOLD, SET_SHADING
+from .packing import LIT_SHADOWS
+from .layout import (
+    CB,
+    CG,
+    CR,
+    HQ,
+    LEAF,
+    PAR_VMAX,
+    PAR_VMIN,
+    SET_K,
+    SET_LIT_THRESHOLD,
+    SET_SHADING,
+    TS,
+    Kind,
+    Shading,
+)
 
 SHADOW_POINTS = 32  # shadow grid points along an object's longest axis
 SHADOW_STEP = 1.0   # reference mode: shadow ray sample spacing, voxels
@@ -68,7 +82,7 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
     x, y, z; wr the world ray (origin, direction), t the sample's distance along it. Below the
     gradient threshold (a fraction of the transfer function's value range per voxel) the
     emission colour stays; the normal is -gradient (the medium's outside), in world space."""
-    rng = par[1] - par[0]
+    rng = par[PAR_VMAX] - par[PAR_VMIN]
     if not rng > 0.0:
         rng = 1.0
     thr = settings[SET_LIT_THRESHOLD] * rng
@@ -90,7 +104,7 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
     cr, cg, cb = samp[1], samp[2], samp[3]
     r, g, b = ka * cr, ka * cg, ka * cb
     nl = lights.shape[0]
-    shadows = objs.lit[ob] == LIT_SHADOWS
+    shadows = objs.lit[ob] == Shading.LIT_SHADOWS
     for k in range(nl):
         ok, lx, ly, lz, er, eg, eb, _ = light_at(lights, k, px, py, pz, dx, dy, dz)
         ndl = nx * lx + ny * ly + nz * lz
@@ -187,7 +201,7 @@ def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer
     tau = 0.0
     for w in range(accel.walk_obj.shape[0]):
         ob = accel.walk_obj[w]
-        if objs.kind[ob] != 0:
+        if objs.kind[ob] != Kind.FOG:
             continue
         M = objs.w2i[ob]
         for c in range(3):
@@ -278,11 +292,11 @@ def lit_gradients(mu, inv, fw, first, k):
         if s.stop == s.start:
             continue
         m = mu[s]
-        cells = np.floor((m + 0.5) / 8.0).astype(np.int64)  # a voxel's centre sits at its index
+        cells = np.floor((m + 0.5) / LEAF).astype(np.int64)  # a voxel's centre sits at its index
         keys = cell_keys(cells)
         ukeys, where = np.unique(keys, return_inverse=True)
         corg = np.empty((len(ukeys), 3), np.int64)
-        corg[where] = cells * 8
+        corg[where] = cells * LEAF
         sig = 1.0 / inv[s]
         lists = pair_lists(dict(keys=ukeys, corg=corg), m, sig, k)
         order = np.argsort(where, kind="stable")
