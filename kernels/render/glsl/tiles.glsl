@@ -139,8 +139,11 @@ void main()
       for (int y = j0; y <= j1; y++) {
         if (y < 4) lo |= row << uint(TILE * y); else hi |= row << uint(TILE * (y - 4));
       }
-      uint p0 = lo & 0x3FFFFFu, p1 = (lo >> 22u) | ((hi & 0xFFFu) << 10u), p2 = hi >> 12u;
-      imageStore(t_raw, at(q), vec4(float(g), float(p0), float(p1), float(p2)));
+      /* the 64-bit mask (lo, hi words) in pieces of MASK_BITS (22, 22, 20), as TENT holds them */
+      const uint hb = uint(2 * MASK_BITS - 32);  /* the second piece's bits in hi */
+      uint p0 = lo & ((1u << uint(MASK_BITS)) - 1u);
+      uint p1 = (lo >> uint(MASK_BITS)) | ((hi & ((1u << hb) - 1u)) << (32u - uint(MASK_BITS))), p2 = hi >> hb;
+      imageStore(t_raw, at(q), vec4(float(g), float(p0), float(p1), float(p2)));  /* TENT_ID, TENT_MASK.. */
       imageStore(t_tile, at(q), vec4(float(ty * ntx + tx), 0.0, 0.0, 0.0));
     }
   }
