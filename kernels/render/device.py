@@ -23,6 +23,7 @@ import numpy as np
 
 from ..cachedir import set_cache_root
 from . import packing
+from .layout import BG_DEPTH, LS_COLOR, LS_CONST, LS_PLANE, LS_RANGE, REC_LB, Kind, Shading
 from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds, tile_budget
 from .scene import Mode, RenderScene, same_geometry
 from .splat_scene import SplatGrids
@@ -205,11 +206,12 @@ class CPUDevice(Device):
             if obj_kind[k]:
                 w[s] = t.density * a
                 ls = obj_ls[k]
-                if ls[0] > 0.5:
-                    col[s] = ls[8:11]
+                if ls[LS_CONST] > 0.5:
+                    col[s] = ls[LS_COLOR:LS_COLOR + 3]
                 else:
-                    c = A.g_mu[s] @ ls[1:4] + ls[4]
-                    x = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else np.full(c.shape, 0.5)
+                    c = A.g_mu[s] @ ls[LS_PLANE:LS_PLANE + 3] + ls[LS_PLANE + 3]
+                    lo, hi = ls[LS_RANGE], ls[LS_RANGE + 1]
+                    x = (c - lo) / (hi - lo) if hi > lo else np.full(c.shape, 0.5)
                     self._k.lut_rows(t.lut, x, col[s])
             else:
                 rgba = np.empty((v.shape[0], 4))
@@ -247,7 +249,7 @@ class CPUDevice(Device):
             for k in range(len(obj_tf)):
                 sel = cell_obj == k
                 t = tfs[obj_tf[k]]
-                if obj_kind[k] == 2:
+                if obj_kind[k] == Kind.SURFACE:
                     continue
                 if obj_kind[k]:
                     skip[sel] = t.density <= 0
@@ -268,7 +270,7 @@ class CPUDevice(Device):
         for k in range(len(obj_tf)):
             sel = cobj == k
             t = tfs[obj_tf[k]]
-            if obj_kind[k] == 2:
+            if obj_kind[k] == Kind.SURFACE:
                 skip[sel] = hi[sel] <= 0
             elif obj_kind[k]:
                 skip[sel] = (t.density <= 0) | (hi[sel] <= 0)
@@ -310,7 +312,7 @@ class CPUDevice(Device):
         scene = self._splats.drawn(scene)
         mode = Mode.of(scene.mode)
         prep = self._prepare(scene, tf)
-        if mode == Mode.PARTICLES and (prep[1].kind == 2).any():
+        if mode == Mode.PARTICLES and (prep[1].kind == Kind.SURFACE).any():
             # surfaces are found by the field sampler: such a frame draws as field
             mode = Mode.FIELD
         key = self._frame_key(mode, scene, camera, prep)
@@ -364,15 +366,15 @@ class CPUDevice(Device):
                                            self._lit_gradients() if lit else None)
             *tiles, t_lb = self._screen_tiles(mode, scene, camera, gauss.w)
             if t_lb is not None:
-                gauss.rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
-            if t_lb is None or (obj_kind == 2).any() or (objects.lit == packing.LIT_SHADOWS).any():
+                gauss.rec[:, REC_LB] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
+            if t_lb is None or (obj_kind == Kind.SURFACE).any() or (objects.lit == Shading.LIT_SHADOWS).any():
                 acc = self._halo_lists()  # the leaf walk, surface normals, shadow rays
         cell_skip = self._cell_skip(mode, acc, gauss.w, tfs, obj_tf, obj_kind)
         if mode == Mode.REFERENCE and acc.n_cells:  # which screen tiles have leaves to walk
             tiles = self._kt.leaf_tiles(camera.packed(), objects.w2i, acc.cell_xyz, acc.cell_obj, cell_skip)
         accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=mode == Mode.REFERENCE,
                                    xfer=(obj_tf, transfer))
-        if (objects.lit == packing.LIT_SHADOWS).any():
+        if (objects.lit == Shading.LIT_SHADOWS).any():
             objects = self._shadow_grids(mode, scene, tfs, objects, gauss, accel, transfer)
         return _Frame(mode, camera.packed(), camera.width, camera.height, gauss, objects, accel,
                       transfer)
@@ -430,7 +432,7 @@ class CPUDevice(Device):
         # the kernels write float32 passes (rounded from their float64 as astype would); rows a
         # cancel leaves undrawn stay transparent
         rgba = np.zeros((nr, nc, 4), np.float32)
-        depth = np.full((nr, nc), 1e10, np.float32)
+        depth = np.full((nr, nc), BG_DEPTH, np.float32)
         value = np.zeros((nr, nc), np.float32)
         segs = np.zeros(nr)
         cancelled = False

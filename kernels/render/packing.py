@@ -40,8 +40,6 @@ from .layout import (
     Shading,
 )
 
-LIT, LIT_SHADOWS = Shading.LIT, Shading.LIT_SHADOWS  # (the names device.py reads)
-
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
 # lists); sph: a float32 bounding sphere near obj_ref; clo/chi: the leaf-cell box of its support;
