@@ -22,9 +22,11 @@ from ..lod.levelset import SURFACE_LEVEL  # noqa: F401  (one of GLSL_CONSTANTS)
 class Record:
     """Fields at consecutive offsets: ``fields`` a string of ``NAME`` / ``NAME:width`` words or
     (name, width) pairs. ``prefix`` names the constants (None: the bare field names, for the
-    CPU kernels' scratch columns); ``glsl``: whether the shaders get them too."""
+    CPU kernels' scratch columns); ``glsl``: whether the shaders get them too; ``texels``: the
+    fields a shader reads as whole texels, which start at a multiple of 4 (padding before them,
+    and the size rounded up to whole texels)."""
 
-    def __init__(self, prefix, fields, glsl=True, size_name=None):
+    def __init__(self, prefix, fields, glsl=True, size_name=None, texels=()):
         if isinstance(fields, str):
             fields = [(w.split(":")[0], int(w.split(":")[1]) if ":" in w else 1) for w in fields.split()]
         self.prefix, self.glsl = prefix, glsl
@@ -33,9 +35,12 @@ class Record:
         for name, width in self.fields:
             if name in self.offset or width < 1:
                 raise ValueError(f"record {prefix}: field {name!r} repeated or of width {width}")
+            if name in texels:
+                off = 4 * -(-off // 4)
             self.offset[name] = off
             off += width
-        self.size = off
+        self.size = 4 * -(-off // 4) if texels else off
+        self.texels = tuple(texels)
         self.size_name = size_name or f"{prefix}_SIZE"
         if any((f"{prefix}_{n}" if prefix else n) == self.size_name for n in self.offset):
             raise ValueError(f"record {prefix}: a field named as its size {self.size_name}")
@@ -135,7 +140,8 @@ FR = Record("FR", [("CAM", 4 * texels(CAM.size)), ("SET", SET.size)])
 # signed-distance surface's single-layer level (0: none), shadow grid
 OBJ = Record("OBJ", [("W2I", 12), ("KIND", 1), ("TF", 1), ("STEP", 1), ("LIT", 1), ("LS", LS.size),
                      ("NCLIP", 1), ("NODE_MIN", 3), ("NODE_OFF", 1), ("NODE_DIMS", 3),
-                     ("WALK_SCALE", 1), ("REF", 3), ("LEVEL", 1), ("SH_GRID", SHG.size)])
+                     ("WALK_SCALE", 1), ("REF", 3), ("LEVEL", 1), ("SH_GRID", SHG.size)],
+             texels=("W2I", "NODE_MIN", "NODE_DIMS", "REF", "SH_GRID"))
 OBJ_TEXELS = texels(OBJ.size)
 # obj_color (gpu_layout_color): colour map row (-1: none), colour grid's background
 OCOL = Record("OCOL", "CTF CBG PAD:2")
@@ -195,9 +201,6 @@ def _export():
 
 
 _export()
-for _f in ("W2I", "NODE_MIN", "NODE_DIMS", "REF", "SH_GRID"):  # the shaders read these as texels
-    assert OBJ.offset[_f] % 4 == 0, _f
-assert OBJ.size % 4 == 0 and FR.offset["CAM"] + FR.width("CAM") >= CAM.size
 
 
 def _glsl_value(v) -> str:

@@ -84,11 +84,17 @@ def test_records_are_consecutive_and_the_texel_reads_aligned():
     for r in layout.RECORDS:
         off = 0
         for name, width in r.fields:
-            assert r.offset[name] == off
-            off += width
-        assert r.size == off
+            assert r.offset[name] == (4 * -(-off // 4) if name in r.texels else off)
+            off = r.offset[name] + width
+        assert off <= r.size < off + 4 and (r.size == off or r.texels)
     for f in ("W2I", "NODE_MIN", "NODE_DIMS", "REF", "SH_GRID"):  # read as whole texels
         assert layout.OBJ.offset[f] % 4 == 0
+    # one more ls field moves the object row's texel reads along, aligned
+    ls = layout.Record("LS", "CONST PLANE:4 RANGE:2 VOXEL COLOR:3 NEW")
+    obj = layout.Record("OBJ", [(n, ls.size if n == "LS" else w) for n, w in layout.OBJ.fields],
+                        texels=layout.OBJ.texels)
+    assert obj.offset["NODE_MIN"] == layout.OBJ_NODE_MIN + 4 and obj.size == layout.OBJ_SIZE + 4
+    assert layout.SHG_DIMS % 4 == 0 and layout.FR_SET >= layout.CAM_SIZE
     assert layout.OBJ.width("LS") == layout.LS_SIZE and layout.OBJ.width("SH_GRID") == layout.SHG_SIZE
     assert layout.GREC_SIZE == 8 and layout.TENT_SIZE == 4 and layout.TLG_SIZE == 8  # two / one texel(s)
     assert layout.NF >= layout.NF_PARTICLES and layout.NF == layout.NF_FIELD
