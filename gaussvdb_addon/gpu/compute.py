@@ -8,13 +8,19 @@ import os
 
 import numpy as np
 
-from ...kernels.render import gpu_layout
+from ...kernels.render import gpu_layout, layout
 
 GLSL_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
                         "kernels", "render", "glsl")
 GROUP = 8  # work group: GROUP x GROUP pixels
 CORE_INTS = ("row0", "col0", "nrows", "ncols", "n_obj", "obj_texels", "n_lights")
 _SHADERS = {}  # (mode, resources) -> compiled shader, per process
+
+
+def define_layout(info, max_obj=layout.MAX_OBJ):
+    """The shared records' offsets and constants (layout.glsl_defines) as the shader's defines."""
+    for name, value in layout.glsl_defines(max_obj).items():
+        info.define(name, value)
 
 
 def glsl(name):
@@ -71,8 +77,7 @@ def shader(mode, spec, textures, ints):
         info.sampler(slot, _kind(textures[n]), n)
     for n in CORE_INTS + tuple(sorted(set(ints) - set(CORE_INTS))):
         info.push_constant("INT", n)
-    info.define("MAX_OBJ", str(cap))
-    info.define("LUT_TEXELS", str(gpu_layout.LUT_TEXELS))
+    define_layout(info, cap)
     info.define(f"MODE_{mode}", "1")
     for d in spec.defines:
         info.define(d, "1")

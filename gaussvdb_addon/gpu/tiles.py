@@ -43,7 +43,7 @@ def _shader(stage):
         for name in ints:
             info.push_constant("INT", name)
         info.define(f"STAGE_{stage}", "1")
-        info.define("ROW_TEXELS", str(gpu_layout.ROW_TEXELS))
+        compute.define_layout(info)
         info.local_group_size(GROUP, 1)
         info.compute_source(compute.glsl("tiles.glsl"))
         sh = _SHADERS[stage] = gpu.shader.create_from_info(info)

@@ -14,47 +14,54 @@ import numpy as np
 
 from ..jit import njit, parallel_njit, prange
 from ..lod.levelset import SURFACE_LEVEL
-from ._cpu_chords import NF, OVERFLOW
+from ._cpu_chords import OVERFLOW
 from ._cpu_fog import FOG_CHUNK, reference_fog
 from ._cpu_gauss import NB, trace_gauss, trace_tiles
-from ._cpu_math import (
+from ._cpu_math import INF, _hot, _jit, composite, erf_diff, erf_span, line_integral
+from ._cpu_pieces import lut_rows, paper_piece, reference_piece  # noqa: F401  (lut_rows: for device.py)
+from ._cpu_surface import mixture_normal, shade_hit
+from ._cpu_walk import clip_interval, walk_object
+from .layout import (
     BG_DEPTH,
+    CAM_CLIP,
+    CAM_EX,
+    CAM_EY,
+    CAM_H,
+    CAM_KIND,
+    CAM_OX,
+    CAM_OY,
+    CAM_POS,
+    CAM_ROT,
+    CAM_W,
     DEPTH,
     HIT,
     HIT_NORMAL,
     HIT_OB,
-    INF,
+    NF,
+    NFS,
+    NQS,
     NST,
+    PAR_LOG,
     PCUR,
     PDEPTH,
     RAD,
     SEGS,
-    TMIN,
-    TR,
-    VSUM,
-    VWT,
-    _hot,
-    _jit,
-    composite,
-    erf_diff,
-    erf_span,
-    line_integral,
-)
-from ._cpu_pieces import lut_rows, paper_piece, reference_piece  # noqa: F401  (lut_rows: for device.py)
-from ._cpu_surface import mixture_normal, shade_hit
-from ._cpu_tiles import TILE
-from ._cpu_walk import clip_interval, walk_object
-from .modes import LEAF_TILE_MODES, PIECE_MODES, SCREEN_TILE_MODES
-from .packing import (
     SET_BG,
     SET_K,
     SET_PAPER_DEPTH,
     SET_PAPER_STEPS,
     SET_TAU_MAX,
     SET_TMIN,
-    Hits,
-    Scratch,
+    TILE,
+    TMIN,
+    TR,
+    VSUM,
+    VWT,
+    Kind,
+    Shading,
 )
+from .modes import LEAF_TILE_MODES, PIECE_MODES, SCREEN_TILE_MODES
+from .packing import Hits, Scratch
 from .scene import Mode
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
@@ -102,8 +109,8 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     """paper / reference: piece by piece over the covering leaves."""
     one = accel.walk_obj.shape[0] == 1  # one object's leaves: the intervals are the pieces
     tf = objs.tf[0]
-    if (one and mode == Mode.REFERENCE and objs.kind[0] == 0 and objs.ctf[0] < 0 and objs.lit[0] == 0
-            and xfer.par[tf, 2] < 0.5):  # one fog volume, Emission, linear transfer function
+    if (one and mode == Mode.REFERENCE and objs.kind[0] == Kind.FOG and objs.ctf[0] < 0
+            and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):  # one fog volume, Emission, linear transfer function
         reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
                       accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear, scr.fog)
         return
@@ -179,12 +186,12 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0) and image columns
     [c0, c1) (output column i - c0), tile by tile (see render_band); no allocation, no reference
     counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than
-    hits has. Rays run over [clip start, clip end] along the view axis (cam[19:21]); each object's
+    hits has. Rays run over [clip start, clip end] along the view axis (cam[CAM_CLIP:]); each object's
     part of a ray is further cut to its clip half-spaces objs.clip[ob] (scr.rclip[ob], clip.py)."""
-    W = int(cam[1])
-    Hh = int(cam[2])
-    ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
-    clip0, clip1 = cam[19], cam[20]
+    W = int(cam[CAM_W])
+    Hh = int(cam[CAM_H])
+    ex, ey, offx, offy = cam[CAM_EX], cam[CAM_EY], cam[CAM_OX], cam[CAM_OY]
+    clip0, clip1 = cam[CAM_CLIP], cam[CAM_CLIP + 1]
     w2i = objs.w2i
     n_obj = w2i.shape[0]
     settings = xfer.settings
@@ -234,19 +241,20 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             continue
         py = ((j + 0.5) / Hh - 0.5) * ey + offy
         px = ((i + 0.5) / W - 0.5) * ex + offx
-        if cam[0] < 0.5:
-            dcx = cam[7] * px + cam[8] * py - cam[9]
-            dcy = cam[10] * px + cam[11] * py - cam[12]
-            dcz = cam[13] * px + cam[14] * py - cam[15]
+        # R = cam[CAM_ROT:][:9] row-major: R[r, c] at CAM_ROT + 3 r + c (columns: camera x, y, z)
+        if cam[CAM_KIND] < 0.5:
+            dcx = cam[CAM_ROT] * px + cam[CAM_ROT + 1] * py - cam[CAM_ROT + 2]
+            dcy = cam[CAM_ROT + 3] * px + cam[CAM_ROT + 4] * py - cam[CAM_ROT + 5]
+            dcz = cam[CAM_ROT + 6] * px + cam[CAM_ROT + 7] * py - cam[CAM_ROT + 8]
             nrm = math.sqrt(dcx * dcx + dcy * dcy + dcz * dcz)
             dwx, dwy, dwz = dcx / nrm, dcy / nrm, dcz / nrm
-            owx, owy, owz = cam[16], cam[17], cam[18]
+            owx, owy, owz = cam[CAM_POS], cam[CAM_POS + 1], cam[CAM_POS + 2]
             tn, tf = clip0 * nrm, clip1 * nrm  # the view-axis distances along this ray
         else:
-            dwx, dwy, dwz = -cam[9], -cam[12], -cam[15]
-            owx = cam[16] + px * cam[7] + py * cam[8]
-            owy = cam[17] + px * cam[10] + py * cam[11]
-            owz = cam[18] + px * cam[13] + py * cam[14]
+            dwx, dwy, dwz = -cam[CAM_ROT + 2], -cam[CAM_ROT + 5], -cam[CAM_ROT + 8]
+            owx = cam[CAM_POS] + px * cam[CAM_ROT] + py * cam[CAM_ROT + 1]
+            owy = cam[CAM_POS + 1] + px * cam[CAM_ROT + 3] + py * cam[CAM_ROT + 4]
+            owz = cam[CAM_POS + 2] + px * cam[CAM_ROT + 6] + py * cam[CAM_ROT + 7]
             tn, tf = clip0, clip1
         n = t_start[tl + 1] - t_start[tl] if tiled else 0
         walk = not tiled
@@ -322,6 +330,22 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
 
 
 @njit(**_jit)
+def new_scratch(mw, n_obj, n_walk):
+    """A thread's Scratch (packing.Scratch, by field name) for walks of up to mw leaf intervals,
+    n_obj objects and n_walk walk grids."""
+    return Scratch(iv_ta=np.empty(mw), iv_tb=np.empty(mw), iv_obj=np.empty(mw, np.int32),
+                   iv_cell=np.empty(mw, np.int32), srt=np.empty(mw, np.int64), bnd=np.empty(2 * mw),
+                   act_iv=np.empty(mw, np.int64), cov_obj=np.empty(mw, np.int32),
+                   cov_cell=np.empty(mw, np.int32), ro=np.empty((n_obj, 3)), rd=np.empty((n_obj, 3)),
+                   rclip=np.empty((n_obj, 2)), lastc=np.empty((n_walk, 3), np.int64),
+                   svals=np.empty(n_obj), sact=np.empty(n_obj, np.int64), samp=np.empty(5),
+                   acc=np.empty(6), cb=np.empty(6), st=np.empty(NST), qs=np.empty(NQS, np.int64),
+                   fs=np.empty(NFS), cand=np.empty(NB, np.int64), blk=np.empty((16, NB)),
+                   sprev=np.empty((n_obj, 5)), wr=np.empty(6), sgrad=np.empty((n_obj, 3)),
+                   cvals=np.empty(n_obj), fog=np.empty(FOG_CHUNK))
+
+
+@njit(**_jit)
 def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
     """nr image rows from j0 (output rows from jr0), columns [c0, c1), within one row of screen
     tiles, one tile after the other, so a tile's candidate list and the Gaussians it names stay
@@ -329,17 +353,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
     scratch arrays, then render_pixels (grown and resumed when a ray needs more hit rows). Kept
     out of render_rows' prange body on purpose: per-pixel calls made from inside a parfor body
     with many array arguments measured ~18 us each here."""
-    n_obj = objs.w2i.shape[0]
-    mw = accel.max_walk
-    scr = Scratch(np.empty(mw), np.empty(mw), np.empty(mw, np.int32), np.empty(mw, np.int32),
-                  np.empty(mw, np.int64), np.empty(2 * mw), np.empty(mw, np.int64),
-                  np.empty(mw, np.int32), np.empty(mw, np.int32),
-                  np.empty((n_obj, 3)), np.empty((n_obj, 3)), np.empty((n_obj, 2)),
-                  np.empty((accel.walk_obj.shape[0], 3), np.int64), np.empty(n_obj),
-                  np.empty(n_obj, np.int64),
-                  np.empty(5), np.empty(6), np.empty(6), np.empty(NST), np.empty(6, np.int64),
-                  np.empty(5), np.empty(NB, np.int64), np.empty((16, NB)), np.empty((n_obj, 5)),
-                  np.empty(6), np.empty((n_obj, 3)), np.empty(n_obj), np.empty(FOG_CHUNK))
+    scr = new_scratch(accel.max_walk, objs.w2i.shape[0], accel.walk_obj.shape[0])
     cap = 256
     hits = ray_scratch(cap)
     out.segs[jr0:jr0 + nr] = 0.0

@@ -9,32 +9,46 @@ import math
 import numpy as np
 
 from ..jit import njit
-from ._cpu_math import (
+from ._cpu_math import INF, _hot, composite, erf_fast, erf_span
+from .layout import (
     BG_DEPTH,
+    CB,
+    CEND,
+    CG,
+    CR,
     DEPTH,
-    INF,
+    FA,
+    FB,
+    HA,
+    HQ,
+    HSTEP,
+    IA,
+    LAST,
+    NH,
+    NQ,
+    NQS,
+    PK,
+    QH,
+    REC_INV,
+    REC_MU,
+    REC_W,
+    RHO,
+    SA,
     SEGS,
+    SQRT_HALF,
+    SQRT_HALF_PI,
     TMIN,
     TR,
-    _hot,
-    composite,
-    erf_fast,
-    erf_span,
+    TS,
+    VAL,
+    VW,
+    C,
+    E,
+    S,
 )
 from .scene import Mode
 
-# hit record columns (float64): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
-# sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; particles: erf at the member's last boundary FA (and a
-# running one, FB), colour, value (0 when NaN) and value weight (0 when NaN); field keeps V, R,
-# RC, EX (value, ratios, exit), for lit volumes the gradient's terms GA (3) + t GB (3) and, for
-# volumes coloured by a second grid, its mixture's term CV, by active slot (sweep_field)
-S, E, TS, SA, C, HQ, HA, PK, FA, FB, CR, CG, CB, VAL, VW = range(15)
-V, R, RC, EX, GA, GB, CV = 8, 9, 10, 11, 12, 15, 18
-NF = 19
-SQRT_HALF = math.sqrt(0.5)
-SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
-# g_rec columns: centre (3), 1/sigma (3), extinction weight, and (tile lists) the entry bound
-LB = 7
+# the hit record's columns (S .. CV, NF) and the sweep state's (NQ .. QH, IA .. CEND): layout
 OVERFLOW = -1
 
 
@@ -207,17 +221,14 @@ def close_interval(st, H, mem, nm, a, b, spread, tau_max, keep, cb):
     return n, rho
 
 
-# per-ray sweep state: qs (int64) and fs (float64) columns
-NQ, NACT, NM, NH, ISAMP, QH = range(6)  # queue: [QH, NQ)
 BATCH = 32
-IA, LAST, RHO, HSTEP, CEND = range(5)
 
 
 @njit(**_hot)
 def sweep_start(mode, qs, fs, cb, rd, obj_step):
     """Empty queue, no hits; field samples at t_i = (i + 1/2) h from the ray origin, h the finest
     object step along this ray."""
-    for c in range(6):
+    for c in range(NQS):
         qs[c] = 0
     fs[IA] = 0.0
     fs[LAST] = 0.0
@@ -255,15 +266,15 @@ def chord_of(mx, my, mz, ix, iy, iz, ox, oy, oz, dx, dy, dz, k2, tn, tf):
 @njit(**_hot, inline="always")
 def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf):
     """chord_of for Gaussian g's record in g_rec."""
-    return chord_of(g_rec[g, 0], g_rec[g, 1], g_rec[g, 2], g_rec[g, 3], g_rec[g, 4], g_rec[g, 5],
-                    ox, oy, oz, dx, dy, dz, k2, tn, tf)
+    return chord_of(g_rec[g, REC_MU], g_rec[g, REC_MU + 1], g_rec[g, REC_MU + 2], g_rec[g, REC_INV],
+                    g_rec[g, REC_INV + 1], g_rec[g, REC_INV + 2], ox, oy, oz, dx, dy, dz, k2, tn, tf)
 
 
 @njit(**_hot, inline="always")
 def peak(g, g_rec, qq, k2):
     """Peak density of Gaussian g along a ray passing at squared distance qq (in its sigmas):
     only for hits (an exponential per candidate cost ~15% of the test)."""
-    return g_rec[g, 6] * math.exp(-0.5 * min(qq, k2))
+    return g_rec[g, REC_W] * math.exp(-0.5 * min(qq, k2))
 
 
 @njit(**_hot, inline="always")

@@ -14,8 +14,22 @@ from __future__ import annotations
 import math
 
 from ..jit import njit
-from ._cpu_math import BG_DEPTH, DEPTH, RAD, SEGS, TMIN, TR, VSUM, VWT, _hot, _hot_fused
-from ._cpu_surface import BRICK_HI, trilinear
+from ._cpu_math import _hot, _hot_fused
+from ._cpu_surface import trilinear
+from .layout import (
+    BG_DEPTH,
+    BRICK_HI,
+    DEPTH,
+    PAR_DENSITY,
+    PAR_VMAX,
+    PAR_VMIN,
+    RAD,
+    SEGS,
+    TMIN,
+    TR,
+    VSUM,
+    VWT,
+)
 
 FOG_CHUNK = 32  # samples whose values are taken before they are composited (Scratch.fog)
 
@@ -59,7 +73,7 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
     ox, oy, oz = ro[0, 0], ro[0, 1], ro[0, 2]
     dx, dy, dz = rd[0, 0], rd[0, 1], rd[0, 2]
     dt = step / math.sqrt(dx * dx + dy * dy + dz * dz)
-    lo, hi, a_scale = par[0], par[1], par[3]
+    lo, hi, a_scale = par[PAR_VMIN], par[PAR_VMAX], par[PAR_DENSITY]
     kmax = lut.shape[0] - 1
     scale = kmax / (hi - lo) if hi > lo else 0.0
     T, r, g, b = st[TR], st[RAD], st[RAD + 1], st[RAD + 2]

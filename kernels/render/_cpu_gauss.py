@@ -32,6 +32,23 @@ import numpy as np
 from ..jit import njit
 from ._cpu_chords import (
     BATCH,
+    OVERFLOW,
+    add_hit,
+    chord,
+    chord_of,
+    close_interval,
+    entry_face,
+    peak,
+    reset_bounds,
+    spread_of,
+    sweep_start,
+    test_one,
+    widen,
+)
+from ._cpu_lit import lit_member, shade_sample
+from ._cpu_math import INF, _hot, add_sample, composite_sample, erf_fast, recolor, sample_color
+from ._cpu_surface import field_crossing, mixture_hit
+from .layout import (
     CB,
     CEND,
     CG,
@@ -47,51 +64,33 @@ from ._cpu_chords import (
     IA,
     ISAMP,
     LAST,
-    LB,
     NACT,
     NH,
     NM,
     NQ,
-    OVERFLOW,
     PK,
     QH,
     RC,
+    REC_INV,
+    REC_LB,
+    REC_MU,
+    REC_W,
     RHO,
     SA,
+    SEGS,
+    TILE,
+    TMIN,
+    TR,
     TS,
     VAL,
     VW,
     E,
+    Kind,
     R,
     S,
+    Shading,
     V,
-    add_hit,
-    chord,
-    chord_of,
-    close_interval,
-    entry_face,
-    peak,
-    reset_bounds,
-    spread_of,
-    sweep_start,
-    test_one,
-    widen,
 )
-from ._cpu_lit import lit_member, shade_sample
-from ._cpu_math import (
-    INF,
-    SEGS,
-    TMIN,
-    TR,
-    _hot,
-    add_sample,
-    composite_sample,
-    erf_fast,
-    recolor,
-    sample_color,
-)
-from ._cpu_surface import field_crossing, mixture_hit
-from ._cpu_tiles import TILE
 from .scene import Mode
 
 
@@ -137,7 +136,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
         H[h, CR] = g_col[g, 0]
         H[h, CG] = g_col[g, 1]
         H[h, CB] = g_col[g, 2]
-        if objs.lit[gauss.obj[g]] != 0:
+        if objs.lit[gauss.obj[g]] != Shading.EMISSION:
             lit_member(H, h, g, gauss, objs, xfer, scr)
         v = g_val[g]
         H[h, VAL] = v if v == v else 0.0
@@ -178,7 +177,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
                 obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev, objs, xfer, wr, sgrad, g_cw,
                 cvals):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque.
-    Surfaces (obj_kind 2): the first crossing between samples (_cpu_surface.field_crossing;
+    Surfaces (Kind.SURFACE): the first crossing between samples (_cpu_surface.field_crossing;
     sprev: the object's previous sample level and index); the volumes composite up to it and the
     ray ends there (mixture_hit). With signed distances (objs.sdf) their mixture is carried as a
     colour grid's is (CV, g_cw, cvals). Lit volumes (objs.lit): each sample is shaded on the
@@ -191,7 +190,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
     obj_ctf = objs.ctf
     glit = False
     for ob in range(obj_lit.shape[0]):
-        glit = glit or obj_lit[ob] != 0
+        glit = glit or obj_lit[ob] != Shading.EMISSION
     gcol = False  # a second mixture carried: colour grids, surfaces' signed distances
     for ob in range(obj_ctf.shape[0]):
         gcol = gcol or obj_ctf[ob] >= 0 or objs.sdf[ob] != 0
@@ -213,7 +212,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             nact += 1
             d = ti - H[h, TS]
             ha = H[h, HA]
-            H[k, V] = g_rec[hid[h], 6] * math.exp(-(H[h, HQ] + ha * d * d))
+            H[k, V] = g_rec[hid[h], REC_W] * math.exp(-(H[h, HQ] + ha * d * d))
             if gcol:
                 H[k, CV] = g_cw[hid[h]] * math.exp(-(H[h, HQ] + ha * d * d))
             H[k, R] = math.exp(-ha * (2.0 * d * hstep + hstep * hstep))
@@ -223,8 +222,8 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
                 g = hid[h]
                 ob = g_obj[g]
                 for c in range(3):
-                    i2 = g_rec[g, 3 + c] * g_rec[g, 3 + c]
-                    H[k, GA + c] = i2 * (ro[ob, c] - g_rec[g, c])
+                    i2 = g_rec[g, REC_INV + c] * g_rec[g, REC_INV + c]
+                    H[k, GA + c] = i2 * (ro[ob, c] - g_rec[g, REC_MU + c])
                     H[k, GB + c] = i2 * rd[ob, c]
             cend = max(cend, H[h, E])
         if nact > 0 and ti >= cend:
@@ -301,7 +300,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
         best = -1
         bt = INF
         for ob in range(n_obj):
-            if obj_kind[ob] == 2:  # at every sample: a passage through the shell may end here
+            if obj_kind[ob] == Kind.SURFACE:  # at every sample: a passage through the shell may end here
                 th = field_crossing(sprev, ob, isamp, ti, hstep, svals[ob], cvals[ob], objs.sdf[ob],
                                     objs.cbg[ob])
                 if th < bt:
@@ -316,7 +315,7 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
             sample_color(ob, svals[ob], x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             if gcol:
                 recolor(ob, cvals[ob] + objs.cbg[ob], obj_ctf, tf_lut, tf_par, samp)
-            if obj_lit[ob] != 0 and samp[0] > 0.0:
+            if obj_lit[ob] != Shading.EMISSION and samp[0] > 0.0:
                 shade_sample(samp, ob, sgrad[ob, 0], sgrad[ob, 1], sgrad[ob, 2], x, y, z, wr, ti,
                              objs, xfer.lights, xfer.settings, tf_par[obj_tf[ob]])
             add_sample(acc, samp)
@@ -388,7 +387,7 @@ def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, ta
             j1 = cell_start[cid + 1]
         for j in range(j0, j1):
             g = lst[j]
-            if g_rec[g, 6] == 0.0:
+            if g_rec[g, REC_W] == 0.0:
                 continue
             if f < 0 and (g_clo[g, 0] <= lx and lx <= g_chi[g, 0] and g_clo[g, 1] <= ly
                           and ly <= g_chi[g, 1] and g_clo[g, 2] <= lz and lz <= g_chi[g, 2]):
@@ -426,8 +425,8 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
     the same bits; 1.1-1.15x a dense Low frame)."""
     if ro.shape[0] == 1:
         for c in range(nc):
-            for k in range(6):
-                blk[8 + k, c] = g_rec[cand[c], k]
+            for k in range(6):  # centre and 1/sigma (REC_INV = REC_MU + 3)
+                blk[8 + k, c] = g_rec[cand[c], REC_MU + k]
         ox, oy, oz, dx, dy, dz = ro[0, 0], ro[0, 1], ro[0, 2], rd[0, 0], rd[0, 1], rd[0, 2]
         tno, tfo = max(tn, rclip[0, 0]), min(tf, rclip[0, 1])
         for c in range(nc):
@@ -446,7 +445,7 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max):
     """One ray (pixel i, j), particles or field, over its screen tile's list accel.t_items[t0:t1]
-    (ordered by the lower bound of each support's entry, gauss.rec[g, LB]: see _cpu_tiles), in blocks
+    (ordered by the lower bound of each support's entry, gauss.rec[g, REC_LB]: see _cpu_tiles), in blocks
     of NB candidates (the entries with the pixel's mask bit), the chords clipped to the ray's
     [tn, tf]. Returns 0 or OVERFLOW."""
     qs, fs, cand, blk = scr.qs, scr.fs, scr.cand, scr.blk
@@ -464,7 +463,7 @@ def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2,
             q += 1
         if nc == 0:
             break
-        lbg = g_rec[cand[0], LB]
+        lbg = g_rec[cand[0], REC_LB]
         # sweep after BATCH new hits, up to the block's earliest entry
         if qs[NH] >= swept + BATCH and ((qs[QH] < qs[NQ] and ev_t[qs[QH]] < lbg)
                                         or (qs[NM] > 0 and fs[CEND] <= lbg)):

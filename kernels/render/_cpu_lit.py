@@ -14,11 +14,30 @@ import math
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
-from ._cpu_chords import CB, CG, CR, HQ, TS
 from ._cpu_math import _hot, _jit, erf_span, sample_color, whitened_chord
-from ._cpu_surface import brick_xyz, light_at, trilinear
+from ._cpu_surface import POINT, SUN, brick_xyz, light_at, trilinear
 from ._cpu_walk import clip_interval, walk_object
-from .packing import LIT_SHADOWS, SET_K, SET_LIT_THRESHOLD, SET_SHADING
+from .layout import (
+    CB,
+    CG,
+    CR,
+    HQ,
+    LEAF,
+    LIGHT_KIND,
+    PAR_VMAX,
+    PAR_VMIN,
+    SET_K,
+    SET_LIT_THRESHOLD,
+    SET_SHADING,
+    SHG_DIMS,
+    SHG_OFFSET,
+    SHG_ORIGIN,
+    SHG_SIZE,
+    SHG_SPACING,
+    TS,
+    Kind,
+    Shading,
+)
 
 SHADOW_POINTS = 32  # shadow grid points along an object's longest axis
 SHADOW_STEP = 1.0   # reference mode: shadow ray sample spacing, voxels
@@ -28,11 +47,12 @@ SHADOW_STEP = 1.0   # reference mode: shadow ray sample spacing, voxels
 def shadow_tau(grid, tau, nl, li, x, y, z):
     """Optical depth towards light li at index point x, y, z from an object's shadow grid (row
     grid: origin, spacing, dims, offset), trilinear, clamped to the grid."""
-    s = grid[3]
-    n0, n1, n2 = int(grid[4]), int(grid[5]), int(grid[6])
-    off = int(grid[7])
-    u = (min(max((x - grid[0]) / s, 0.0), n0 - 1.0), min(max((y - grid[1]) / s, 0.0), n1 - 1.0),
-         min(max((z - grid[2]) / s, 0.0), n2 - 1.0))
+    s = grid[SHG_SPACING]
+    n0, n1, n2 = int(grid[SHG_DIMS]), int(grid[SHG_DIMS + 1]), int(grid[SHG_DIMS + 2])
+    off = int(grid[SHG_OFFSET])
+    o0, o1, o2 = grid[SHG_ORIGIN], grid[SHG_ORIGIN + 1], grid[SHG_ORIGIN + 2]
+    u = (min(max((x - o0) / s, 0.0), n0 - 1.0), min(max((y - o1) / s, 0.0), n1 - 1.0),
+         min(max((z - o2) / s, 0.0), n2 - 1.0))
     i0, j0, k0 = min(int(u[0]), n0 - 2), min(int(u[1]), n1 - 2), min(int(u[2]), n2 - 2)
     ax, ay, az = u[0] - i0, u[1] - j0, u[2] - k0
     v = 0.0
@@ -68,7 +88,7 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
     x, y, z; wr the world ray (origin, direction), t the sample's distance along it. Below the
     gradient threshold (a fraction of the transfer function's value range per voxel) the
     emission colour stays; the normal is -gradient (the medium's outside), in world space."""
-    rng = par[1] - par[0]
+    rng = par[PAR_VMAX] - par[PAR_VMIN]
     if not rng > 0.0:
         rng = 1.0
     thr = settings[SET_LIT_THRESHOLD] * rng
@@ -90,7 +110,7 @@ def shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, lights, settings, p
     cr, cg, cb = samp[1], samp[2], samp[3]
     r, g, b = ka * cr, ka * cg, ka * cb
     nl = lights.shape[0]
-    shadows = objs.lit[ob] == LIT_SHADOWS
+    shadows = objs.lit[ob] == Shading.LIT_SHADOWS
     for k in range(nl):
         ok, lx, ly, lz, er, eg, eb, _ = light_at(lights, k, px, py, pz, dx, dy, dz)
         ndl = nx * lx + ny * ly + nz * lz
@@ -187,7 +207,7 @@ def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer
     tau = 0.0
     for w in range(accel.walk_obj.shape[0]):
         ob = accel.walk_obj[w]
-        if objs.kind[ob] != 0:
+        if objs.kind[ob] != Kind.FOG:
             continue
         M = objs.w2i[ob]
         for c in range(3):
@@ -230,7 +250,7 @@ def shadow_grid(voxels, pts_ob, pts, i2w, gauss, wext, objs, accel, xfer, out):
         wz = A[2, 0] * x + A[2, 1] * y + A[2, 2] * z + A[2, 3]
         for k in range(lights.shape[0]):
             # the headlight shines along each view ray: no single direction to shadow it by
-            if lights[k, 0] != 0.0 and lights[k, 0] != 1.0:
+            if lights[k, LIGHT_KIND] != SUN and lights[k, LIGHT_KIND] != POINT:
                 out[p, k] = 0.0
                 continue
             ok, lx, ly, lz, _, _, _, dist = light_at(lights, k, wx, wy, wz, 0.0, 0.0, 0.0)
@@ -278,11 +298,11 @@ def lit_gradients(mu, inv, fw, first, k):
         if s.stop == s.start:
             continue
         m = mu[s]
-        cells = np.floor((m + 0.5) / 8.0).astype(np.int64)  # a voxel's centre sits at its index
+        cells = np.floor((m + 0.5) / LEAF).astype(np.int64)  # a voxel's centre sits at its index
         keys = cell_keys(cells)
         ukeys, where = np.unique(keys, return_inverse=True)
         corg = np.empty((len(ukeys), 3), np.int64)
-        corg[where] = cells * 8
+        corg[where] = cells * LEAF
         sig = 1.0 / inv[s]
         lists = pair_lists(dict(keys=ukeys, corg=corg), m, sig, k)
         order = np.argsort(where, kind="stable")
@@ -299,18 +319,19 @@ def lit_gradients(mu, inv, fw, first, k):
 def shadow_points(index_box, lit, n, nl):
     """The shadow grids' rows (Objects.sh_grid: origin, spacing, dims, offset into sh_tau) of the
     n objects, and their points (index space) with the object of each: SHADOW_POINTS along the
-    longest axis of each shadowed lit volume's index box (lit == LIT_SHADOWS), half a voxel out."""
-    grid = np.zeros((n, 8))
+    longest axis of each shadowed lit volume's index box (Shading.LIT_SHADOWS), half a voxel out."""
+    grid = np.zeros((n, SHG_SIZE))
     pts, owner = [], []
     off = 0
-    for k in np.flatnonzero(lit == LIT_SHADOWS):
+    for k in np.flatnonzero(lit == Shading.LIT_SHADOWS):
         lo, hi = index_box[k]
         lo, hi = lo - 0.5, hi + 0.5
         s = max(float(np.max(hi - lo)) / (SHADOW_POINTS - 1), 1e-6)
         dims = np.maximum(np.ceil((hi - lo) / s).astype(np.int64) + 1, 2)
         axes = [lo[c] + s * np.arange(dims[c]) for c in range(3)]
         p = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        grid[k] = [*lo, s, *dims, off * nl]
+        grid[k, SHG_ORIGIN:SHG_ORIGIN + 3], grid[k, SHG_SPACING] = lo, s
+        grid[k, SHG_DIMS:SHG_DIMS + 3], grid[k, SHG_OFFSET] = dims, off * nl
         pts.append(p)
         owner.append(np.full(p.shape[0], k, np.int32))
         off += p.shape[0]

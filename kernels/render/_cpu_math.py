@@ -7,25 +7,27 @@ import math
 import numpy as np
 
 from ..jit import njit
+from .layout import (
+    BG_DEPTH,
+    DEPTH,
+    LS_COLOR,
+    LS_CONST,
+    LS_PLANE,
+    LS_RANGE,
+    PAR_DENSITY,
+    PAR_LOG,
+    PAR_VMAX,
+    PAR_VMIN,
+    RAD,
+    TR,
+    TWO_OVER_SQRT_PI,
+    VSUM,
+    VWT,
+    Kind,
+)
 
 INF = np.inf
-LEAF = 8.0
-NODE = 128.0
-NL = 16
 SQRT_PI = math.sqrt(math.pi)
-TWO_OVER_SQRT_PI = 2.0 / math.sqrt(math.pi)
-BG_DEPTH = 1e10
-
-# The per-ray state st (float64) by column: transmittance TR, radiance RAD (rgb: RAD + k), the
-# median depth DEPTH, the value sum VSUM and its weight VWT, segments SEGS, the surface flag HIT
-# (HIT_FOUND, or HIT_NORMAL: found, its normal still to take from the Gaussians), the early-
-# termination threshold TMIN, the paper's continuations PDEPTH and where the last one left PCUR;
-# a surface hit (lit level sets, surface_hit): its t HIT_T, index-space gradient HIT_G (xyz), object
-# HIT_OB and albedo HIT_C (rgb).
-TR, RAD, DEPTH, VSUM, VWT, SEGS, HIT, TMIN, PDEPTH, PCUR = 0, 1, 4, 5, 6, 7, 8, 9, 10, 11
-HIT_T, HIT_G, HIT_OB, HIT_C = 12, 13, 16, 17
-NST = 20
-HIT_FOUND, HIT_NORMAL = 1.0, 2.0
 
 _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # Per-pixel kernels: no allocation, so no reference counting. With it, numba increfs and decrefs
@@ -122,9 +124,9 @@ def line_integral(ox, oy, oz, dx, dy, dz, t0, t1):
 @njit(**_hot)
 def tf_x(v, par):
     """Normalised TF coordinate in [0, 1]; NaN stays NaN."""
-    if par[2] > 0.5:
-        lo = math.log10(par[0])
-        hi = math.log10(par[1])
+    if par[PAR_LOG] > 0.5:
+        lo = math.log10(par[PAR_VMIN])
+        hi = math.log10(par[PAR_VMAX])
         if v > 0.0:
             lv = math.log10(v)
         elif v <= 0.0:
@@ -136,12 +138,12 @@ def tf_x(v, par):
         else:
             x = 1.0 if lv >= hi else 0.0
     else:
-        if par[1] > par[0]:
-            x = (v - par[0]) / (par[1] - par[0])
+        if par[PAR_VMAX] > par[PAR_VMIN]:
+            x = (v - par[PAR_VMIN]) / (par[PAR_VMAX] - par[PAR_VMIN])
         elif v != v:
             return v
         else:
-            x = 1.0 if v >= par[1] else 0.0
+            x = 1.0 if v >= par[PAR_VMAX] else 0.0
     if x < 0.0:
         return 0.0
     if x > 1.0:
@@ -212,20 +214,21 @@ def sample_color(ob, s, x_idx, y_idx, z_idx, obj_kind, obj_tf, obj_ls, tf_lut, t
     tfi = obj_tf[ob]
     par = tf_par[tfi]
     lut = tf_lut[tfi]
-    if obj_kind[ob] == 1:  # level set: uniform opacity, colour by coordinate or constant
+    if obj_kind[ob] == Kind.SHELL:  # uniform opacity, colour by coordinate or constant
         occ = s
         if occ > 1.0:
             occ = 1.0
         if occ <= 0.0:
             out[0] = 0.0
             return
-        out[0] = par[3] * occ
+        out[0] = par[PAR_DENSITY] * occ
         ls = obj_ls[ob]
-        if ls[0] > 0.5:
-            out[1], out[2], out[3] = ls[8], ls[9], ls[10]
+        if ls[LS_CONST] > 0.5:
+            out[1], out[2], out[3] = ls[LS_COLOR], ls[LS_COLOR + 1], ls[LS_COLOR + 2]
         else:
-            c = ls[1] * x_idx + ls[2] * y_idx + ls[3] * z_idx + ls[4]
-            x = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else 0.5
+            c = ls[LS_PLANE] * x_idx + ls[LS_PLANE + 1] * y_idx + ls[LS_PLANE + 2] * z_idx + ls[LS_PLANE + 3]
+            lo, hi = ls[LS_RANGE], ls[LS_RANGE + 1]
+            x = (c - lo) / (hi - lo) if hi > lo else 0.5
             x = min(max(x, 0.0), 1.0)
             i, w = lut_pos(lut, x)
             lut_rgb(lut, i, w, out)
@@ -236,7 +239,7 @@ def sample_color(ob, s, x_idx, y_idx, z_idx, obj_kind, obj_tf, obj_ls, tf_lut, t
         out[0] = 0.0
         return
     i, w = lut_pos(lut, x)
-    out[0] = par[3] * (lut[i, 3] * (1.0 - w) + lut[i + 1, 3] * w)
+    out[0] = par[PAR_DENSITY] * (lut[i, 3] * (1.0 - w) + lut[i + 1, 3] * w)
     lut_rgb(lut, i, w, out)
     out[4] = s
 

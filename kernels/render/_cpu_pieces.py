@@ -9,17 +9,7 @@ import numpy as np
 from ..jit import njit, parallel_njit, prange
 from ._cpu_lit import shade_sample
 from ._cpu_math import (
-    BG_DEPTH,
-    DEPTH,
     INF,
-    PCUR,
-    PDEPTH,
-    RAD,
-    SEGS,
-    TMIN,
-    TR,
-    VSUM,
-    VWT,
     _hot,
     _jit,
     add_sample,
@@ -30,7 +20,23 @@ from ._cpu_math import (
     sample_color,
     whitened_chord,
 )
-from ._cpu_surface import BRICK_HI, brick_xyz, sdf_crossing, surface_hit, trilinear, trilinear_grad
+from ._cpu_surface import brick_xyz, sdf_crossing, surface_hit, trilinear, trilinear_grad
+from .layout import (
+    BG_DEPTH,
+    BRICK_HI,
+    DEPTH,
+    LS_VOXEL,
+    PCUR,
+    PDEPTH,
+    RAD,
+    SEGS,
+    TMIN,
+    TR,
+    VSUM,
+    VWT,
+    Kind,
+    Shading,
+)
 
 
 @parallel_njit(**_jit)
@@ -52,7 +58,7 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
                     obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp, acc, sprev, objs, xfer, wr, cbricks):
     """reference: trilinear voxel samples at midpoints, exact exponential compositing. Each
     object's medium exists only inside its leaves; objects overlapping in a piece add extinction,
-    colours tau-weighted. Surfaces (obj_kind 2): the first sign change of the trilinear signed
+    colours tau-weighted. Surfaces (Kind.SURFACE): the first sign change of the trilinear signed
     distance from + to - between samples (sprev: the object's previous one), refined by bisection;
     a ray that starts inside (a clip or the camera's cut) hits at its start. The volumes composite
     up to the hit, which ends the ray (surface_hit). Lit volumes: shaded on the voxels' gradient
@@ -94,19 +100,19 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
             c01 = B[i0, j0, k0 + 1] * (1 - ax) + B[i0 + 1, j0, k0 + 1] * ax
             c11 = B[i0, j0 + 1, k0 + 1] * (1 - ax) + B[i0 + 1, j0 + 1, k0 + 1] * ax
             val = (c00 * (1 - ay) + c10 * ay) * (1 - az) + (c01 * (1 - ay) + c11 * ay) * az
-            if obj_kind[ob] == 2:
+            if obj_kind[ob] == Kind.SURFACE:
                 th = sdf_crossing(sprev, ob, val, t, p0, h, ro, rd, B, cell_xyz[cid])
                 if th < bt:
                     bt = th
                     best = c
                 continue
-            if obj_kind[ob] == 1:  # SDF (world units) -> occupancy with a one-voxel ramp
-                val = 0.5 - val / obj_ls[ob, 7]
+            if obj_kind[ob] == Kind.SHELL:  # SDF (world units) -> occupancy with a one-voxel ramp
+                val = 0.5 - val / obj_ls[ob, LS_VOXEL]
             st[SEGS] += 1
             sample_color(ob, val, x, y, z, obj_kind, obj_tf, obj_ls, tf_lut, tf_par, samp)
             if objs.ctf[ob] >= 0:
                 recolor(ob, trilinear(cbricks[cid], fx, fy, fz), objs.ctf, tf_lut, tf_par, samp)
-            if objs.lit[ob] != 0 and samp[0] > 0.0:
+            if objs.lit[ob] != Shading.EMISSION and samp[0] > 0.0:
                 gx, gy, gz = trilinear_grad(B, fx, fy, fz)
                 shade_sample(samp, ob, gx, gy, gz, x, y, z, wr, t, objs, xfer.lights, xfer.settings,
                              tf_par[obj_tf[ob]])

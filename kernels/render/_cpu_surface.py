@@ -18,8 +18,10 @@ import math
 import numpy as np
 
 from ..jit import njit
-from ._cpu_math import (
+from ._cpu_math import INF, _hot, composite, lut_pos
+from .layout import (
     BG_DEPTH,
+    BRICK_HI,
     DEPTH,
     HIT,
     HIT_C,
@@ -28,16 +30,28 @@ from ._cpu_math import (
     HIT_NORMAL,
     HIT_OB,
     HIT_T,
-    INF,
     LEAF,
-    NL,
+    LIGHT_KIND,
+    LIGHT_RGB,
+    LIGHT_VEC,
+    LS_COLOR,
+    LS_CONST,
+    LS_PLANE,
+    LS_RANGE,
+    NODE_LEAVES,
+    NORMAL_BLUR,
+    NORMAL_REACH,
     RAD,
+    REC_INV,
+    REC_MU,
+    REC_W,
+    SDF_OCCUPANCY,
+    SET_SHADING,
     TR,
-    _hot,
-    composite,
-    lut_pos,
+    LightKind,
 )
-from .packing import SET_SHADING
+
+POINT, SUN = float(LightKind.POINT), float(LightKind.SUN)  # as the float lights rows hold them
 
 
 @njit(**_hot)
@@ -52,11 +66,12 @@ def surface_hit(st, ob, t, gx, gy, gz, obj_ls, lut, x, y, z):
     st[HIT_G + 2] = gz
     st[HIT_OB] = ob
     ls = obj_ls[ob]
-    if ls[0] > 0.5:
-        st[HIT_C], st[HIT_C + 1], st[HIT_C + 2] = ls[8], ls[9], ls[10]
+    if ls[LS_CONST] > 0.5:
+        st[HIT_C], st[HIT_C + 1], st[HIT_C + 2] = ls[LS_COLOR], ls[LS_COLOR + 1], ls[LS_COLOR + 2]
     else:
-        c = ls[1] * x + ls[2] * y + ls[3] * z + ls[4]
-        u = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else 0.5
+        c = ls[LS_PLANE] * x + ls[LS_PLANE + 1] * y + ls[LS_PLANE + 2] * z + ls[LS_PLANE + 3]
+        lo, hi = ls[LS_RANGE], ls[LS_RANGE + 1]
+        u = (c - lo) / (hi - lo) if hi > lo else 0.5
         i, w = lut_pos(lut, min(max(u, 0.0), 1.0))
         for k in range(3):
             st[HIT_C + k] = lut[i, k] * (1.0 - w) + lut[i + 1, k] * w
@@ -68,17 +83,17 @@ def surface_hit(st, ob, t, gx, gy, gz, obj_ls, lut, x, y, z):
 def light_at(lights, k, px, py, pz, dx, dy, dz):
     """Light k seen from world point p on a ray of direction d: (ok, unit direction towards it,
     irradiance rgb, distance). Point lights fall off as 1 / r^2; the headlight shines along d."""
-    er, eg, eb = lights[k, 4], lights[k, 5], lights[k, 6]
-    kind = lights[k, 0]
-    if kind == 1.0:
-        lx, ly, lz = lights[k, 1] - px, lights[k, 2] - py, lights[k, 3] - pz
+    er, eg, eb = lights[k, LIGHT_RGB], lights[k, LIGHT_RGB + 1], lights[k, LIGHT_RGB + 2]
+    kind = lights[k, LIGHT_KIND]
+    if kind == POINT:
+        lx, ly, lz = lights[k, LIGHT_VEC] - px, lights[k, LIGHT_VEC + 1] - py, lights[k, LIGHT_VEC + 2] - pz
         d2 = lx * lx + ly * ly + lz * lz
         if not d2 > 0.0:
             return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         dl = math.sqrt(d2)
         return True, lx / dl, ly / dl, lz / dl, er / d2, eg / d2, eb / d2, dl
-    if kind == 0.0:
-        return True, -lights[k, 1], -lights[k, 2], -lights[k, 3], er, eg, eb, INF
+    if kind == SUN:
+        return True, -lights[k, LIGHT_VEC], -lights[k, LIGHT_VEC + 1], -lights[k, LIGHT_VEC + 2], er, eg, eb, INF
     return True, -dx, -dy, -dz, er, eg, eb, INF
 
 
@@ -128,15 +143,12 @@ def shade_hit(st, M, lights, par, ox, oy, oz, dx, dy, dz):
     st[TR] = 0.0
 
 
-BRICK_HI = 8.999999  # a brick coordinate's upper clamp: its last trilinear cell, 8..9, kept open
-
-
 @njit(**_hot, inline="always")
 def brick_xyz(cxyz, x, y, z):
     """Index point -> coordinates in its leaf's 10^3 brick (apron of one voxel), clamped."""
-    fx = min(max(x - (cxyz[0] * 8 - 1), 0.0), BRICK_HI)
-    fy = min(max(y - (cxyz[1] * 8 - 1), 0.0), BRICK_HI)
-    fz = min(max(z - (cxyz[2] * 8 - 1), 0.0), BRICK_HI)
+    fx = min(max(x - (cxyz[0] * LEAF - 1), 0.0), BRICK_HI)
+    fy = min(max(y - (cxyz[1] * LEAF - 1), 0.0), BRICK_HI)
+    fz = min(max(z - (cxyz[2] * LEAF - 1), 0.0), BRICK_HI)
     return fx, fy, fz
 
 
@@ -204,11 +216,6 @@ def sdf_crossing(sprev, ob, phi, t, p0, h, ro, rd, B, cxyz):
         else:
             hi = mid
     return 0.5 * (lo + hi)
-
-
-SDF_OCCUPANCY = 0.25  # signed-distance surfaces: the occupancy above which S is trusted
-NORMAL_BLUR = 1.0  # occupancy surfaces: variance (voxels^2) of the blur under the normal
-NORMAL_REACH = 4.0  # voxels around the hit searched for Gaussians
 
 
 @njit(**_hot, inline="always")
@@ -312,28 +319,28 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
     for cx in range(lo0, hi0 + 1):
         for cy in range(lo1, hi1 + 1):
             for cz in range(lo2, hi2 + 1):
-                nx, ny, nz = cx // NL, cy // NL, cz // NL
+                nx, ny, nz = cx // NODE_LEAVES, cy // NODE_LEAVES, cz // NODE_LEAVES
                 if (nx < nm[0] or ny < nm[1] or nz < nm[2] or nx >= nm[0] + nd[0]
                         or ny >= nm[1] + nd[1] or nz >= nm[2] + nd[2]):
                     continue
                 nid = node_table[noff[ob] + ((nx - nm[0]) * nd[1] + (ny - nm[1])) * nd[2] + (nz - nm[2])]
                 if nid < 0:
                     continue
-                cid = node_cells[nid, ((cx - nx * NL) * NL + (cy - ny * NL)) * NL + (cz - nz * NL)]
+                cid = node_cells[nid, ((cx - nx * NODE_LEAVES) * NODE_LEAVES + (cy - ny * NODE_LEAVES)) * NODE_LEAVES + (cz - nz * NODE_LEAVES)]
                 if cid < 0:
                     continue
                 for j in range(cell_start[cid], cell_start[cid + 1]):
                     g = cell_items[j]
-                    if (math.floor((g_rec[g, 0] + 0.5) / LEAF) != cx
-                            or math.floor((g_rec[g, 1] + 0.5) / LEAF) != cy
-                            or math.floor((g_rec[g, 2] + 0.5) / LEAF) != cz):
+                    if (math.floor((g_rec[g, REC_MU] + 0.5) / LEAF) != cx
+                            or math.floor((g_rec[g, REC_MU + 1] + 0.5) / LEAF) != cy
+                            or math.floor((g_rec[g, REC_MU + 2] + 0.5) / LEAF) != cz):
                         continue  # counted in the cell of its centre
-                    w = g_rec[g, 6]
+                    w = g_rec[g, REC_W]
                     if w == 0.0:
                         continue
                     if sdf:  # the fit's sums, about the hit
-                        ux, uy, uz = g_rec[g, 0] - x, g_rec[g, 1] - y, g_rec[g, 2] - z
-                        q = (ux * g_rec[g, 3]) ** 2 + (uy * g_rec[g, 4]) ** 2 + (uz * g_rec[g, 5]) ** 2
+                        ux, uy, uz = g_rec[g, REC_MU] - x, g_rec[g, REC_MU + 1] - y, g_rec[g, REC_MU + 2] - z
+                        q = (ux * g_rec[g, REC_INV]) ** 2 + (uy * g_rec[g, REC_INV + 1]) ** 2 + (uz * g_rec[g, REC_INV + 2]) ** 2
                         if q > 16.0:
                             continue
                         e = math.exp(-0.5 * q)
@@ -343,16 +350,16 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
                         syy, syz, szz = syy + ew * uy * uy, syz + ew * uy * uz, szz + ew * uz * uz
                         d0, d1, d2, d3 = d0 + ed, d1 + ed * ux, d2 + ed * uy, d3 + ed * uz
                         continue
-                    ix = 1.0 / math.sqrt(1.0 / g_rec[g, 3] ** 2 + NORMAL_BLUR)
-                    iy = 1.0 / math.sqrt(1.0 / g_rec[g, 4] ** 2 + NORMAL_BLUR)
-                    iz = 1.0 / math.sqrt(1.0 / g_rec[g, 5] ** 2 + NORMAL_BLUR)
-                    ux = (x - g_rec[g, 0]) * ix
-                    uy = (y - g_rec[g, 1]) * iy
-                    uz = (z - g_rec[g, 2]) * iz
+                    ix = 1.0 / math.sqrt(1.0 / g_rec[g, REC_INV] ** 2 + NORMAL_BLUR)
+                    iy = 1.0 / math.sqrt(1.0 / g_rec[g, REC_INV + 1] ** 2 + NORMAL_BLUR)
+                    iz = 1.0 / math.sqrt(1.0 / g_rec[g, REC_INV + 2] ** 2 + NORMAL_BLUR)
+                    ux = (x - g_rec[g, REC_MU]) * ix
+                    uy = (y - g_rec[g, REC_MU + 1]) * iy
+                    uz = (z - g_rec[g, REC_MU + 2]) * iz
                     q = ux * ux + uy * uy + uz * uz
                     if q > 16.0:
                         continue
-                    e = w * ix * iy * iz / (g_rec[g, 3] * g_rec[g, 4] * g_rec[g, 5]) * math.exp(-0.5 * q)
+                    e = w * ix * iy * iz / (g_rec[g, REC_INV] * g_rec[g, REC_INV + 1] * g_rec[g, REC_INV + 2]) * math.exp(-0.5 * q)
                     gx += e * ux * ix
                     gy += e * uy * iy
                     gz += e * uz * iz

@@ -19,8 +19,20 @@ import numpy as np
 
 from ..jit import njit, parallel_njit, prange
 from ._cpu_math import INF, _jit
+from .layout import (
+    CAM_EX,
+    CAM_EY,
+    CAM_H,
+    CAM_KIND,
+    CAM_OX,
+    CAM_OY,
+    CAM_POS,
+    CAM_ROT,
+    CAM_W,
+    LEAF,
+    TILE,
+)
 
-TILE = 8
 MARGIN_PX = 1e-3  # widen the pixel rectangle for the rounding of the projection
 
 
@@ -86,10 +98,10 @@ def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
     cmat[ob] (3x4): index space -> camera coordinates (the camera basis inverse times the object's
     index-to-world matrix, translation relative to the camera position); onorm[ob]: the spectral
     norm of the object's index-to-world linear part."""
-    W = int(cam[1])
-    H = int(cam[2])
-    ex, ey, offx, offy = cam[3], cam[4], cam[5], cam[6]
-    ortho = cam[0] > 0.5
+    W = int(cam[CAM_W])
+    H = int(cam[CAM_H])
+    ex, ey, offx, offy = cam[CAM_EX], cam[CAM_EY], cam[CAM_OX], cam[CAM_OY]
+    ortho = cam[CAM_KIND] > 0.5
     for g in prange(g_mu.shape[0]):
         box[g, 0] = 1
         box[g, 1] = 0
@@ -210,8 +222,8 @@ def tile_fill(box, lb, cnt, start, ntx):
 def tile_camera(cam, i2w):
     """Per object: cmat (3x4, index space -> camera coordinates relative to the camera position)
     and onorm (the spectral norm of its index-to-world linear part), as gauss_footprints takes."""
-    rot = np.asarray(cam[7:16], np.float64).reshape(3, 3)
-    pos = np.asarray(cam[16:19], np.float64)
+    rot = np.asarray(cam[CAM_ROT:CAM_ROT + 9], np.float64).reshape(3, 3)
+    pos = np.asarray(cam[CAM_POS:CAM_POS + 3], np.float64)
     rinv = np.linalg.inv(rot)
     n = len(i2w)
     cmat = np.zeros((n, 3, 4))
@@ -232,8 +244,8 @@ def screen_tiles(cam, i2w, g_mu, g_inv, g_obj, g_w, k, limit):
     box = np.empty((m, 4), np.int32)
     lb = np.empty(m)
     gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, float(k), box, lb)
-    ntx = (int(cam[1]) + TILE - 1) // TILE
-    nty = (int(cam[2]) + TILE - 1) // TILE
+    ntx = (int(cam[CAM_W]) + TILE - 1) // TILE
+    nty = (int(cam[CAM_H]) + TILE - 1) // TILE
     cnt = tile_counts(box, ntx, nty)
     start = np.zeros(ntx * nty + 1, np.int64)
     np.cumsum(cnt.sum(0), out=start[1:])
@@ -249,14 +261,14 @@ def leaf_tiles(cam, w2i, cell_xyz, cell_obj, cell_skip):
     pixel of a tile with none walks nothing. w2i: the objects' world -> index matrices. With
     NO_TILES' layout (ids and masks unused)."""
     n = cell_xyz.shape[0]
-    centre = cell_xyz * 8.0 + 3.5  # a leaf's voxels (index space) span 8 c - 0.5 .. 8 c + 7.5
-    inv = np.full((n, 3), 1.0 / (4.0 * math.sqrt(3.0)))
+    centre = cell_xyz * float(LEAF) + 0.5 * (LEAF - 1)  # a leaf's voxels span 8 c - 0.5 .. 8 c + 7.5
+    inv = np.full((n, 3), 1.0 / (0.5 * LEAF * math.sqrt(3.0)))
     cmat, onorm = tile_camera(cam, [np.linalg.inv(m) for m in w2i])
     box = np.empty((n, 4), np.int32)
     gauss_footprints(cam, cmat, onorm, centre, inv, cell_obj.astype(np.int32),
                      (cell_skip == 0).astype(np.float64), 1.0, box, np.empty(n))
-    ntx = (int(cam[1]) + TILE - 1) // TILE
-    nty = (int(cam[2]) + TILE - 1) // TILE
+    ntx = (int(cam[CAM_W]) + TILE - 1) // TILE
+    nty = (int(cam[CAM_H]) + TILE - 1) // TILE
     start = np.zeros(ntx * nty + 1, np.int64)
     np.cumsum(tile_counts(box, ntx, nty).sum(0), out=start[1:])
     return start, np.zeros(1, np.int32), np.zeros(1, np.int64)

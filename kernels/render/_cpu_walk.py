@@ -5,7 +5,12 @@ from __future__ import annotations
 import math
 
 from ..jit import njit
-from ._cpu_math import INF, LEAF, NL, NODE, _hot
+from ._cpu_math import INF, _hot
+from .layout import (
+    LEAF,
+    NODE,
+    NODE_LEAVES,
+)
 
 
 @njit(**_hot)
@@ -57,8 +62,8 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
     most of a sparse node is empty, and stepping through it cost more than the samples."""
     if ndims[0] == 0:
         return n
-    node = NODE * scale
-    leaf = LEAF * scale
+    node = float(NODE) * scale
+    leaf = float(LEAF) * scale
     qx, qy, qz = ox + 0.5, oy + 0.5, oz + 0.5
     t0, t1 = slab(qx, qy, qz, dx, dy, dz, nmin[0] * node, nmin[1] * node, nmin[2] * node,
                   (nmin[0] + ndims[0]) * node, (nmin[1] + ndims[1]) * node,
@@ -75,7 +80,7 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
             nid = node_table[noff + ((cx - nmin[0]) * ndims[1] + (cy - nmin[1])) * ndims[2] + (cz - nmin[2])]
             if nid >= 0 and node_box[nid, 0] < node_box[nid, 3]:
                 # leaf-level DDA over the node's drawn cells [lo, hi) within [t, tn]
-                bx, by, bz = cx * NL, cy * NL, cz * NL
+                bx, by, bz = cx * NODE_LEAVES, cy * NODE_LEAVES, cz * NODE_LEAVES
                 x0, y0, z0 = bx + node_box[nid, 0], by + node_box[nid, 1], bz + node_box[nid, 2]
                 x1, y1, z1 = bx + node_box[nid, 3], by + node_box[nid, 4], bz + node_box[nid, 5]
                 u, ue = slab(qx, qy, qz, dx, dy, dz, x0 * leaf, y0 * leaf, z0 * leaf, x1 * leaf,
@@ -87,7 +92,7 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
                     while True:
                         un = min(lmx, lmy, lmz, ue)
                         if un > u:
-                            cid = node_cells[nid, ((lx - bx) * NL + (ly - by)) * NL + (lz - bz)]
+                            cid = node_cells[nid, ((lx - bx) * NODE_LEAVES + (ly - by)) * NODE_LEAVES + (lz - bz)]
                             if cid >= 0 and cell_skip[cid] == 0 and n < cap:
                                 iv_ta[n] = u
                                 iv_tb[n] = un

@@ -18,12 +18,10 @@ import os
 import numpy as np
 
 from ..jit import njit
-from .bricks import BRICK, leaf_bricks, sub_max
+from .bricks import leaf_bricks, sub_max
 from .gauss_pack import drawn, spheres
+from .layout import BRICK, LEAF, NODE_LEAVES
 
-LEAF = 8
-NODE_LEAVES = 16
-NODE = LEAF * NODE_LEAVES
 MAX_NODE_TABLE = 1 << 26  # dense node table entries per object (sparse-enough for any VDB we read)
 # Peak bytes per halo-list entry (Gaussian x cell) while add_halo_lists builds them, a cell per
 # entry at worst (measured with tracemalloc: ids, cell coordinates, sort keys and order, the face
@@ -63,9 +61,11 @@ def _cells_to_nodes(cell_xyz):
     return nmin, ndims, table, ncells
 
 
-class Accel:
-    """Packed two-level grid for all objects (see module doc). ``cell_items`` is empty for the
-    voxel (reference) structure, which uses ``bricks`` instead."""
+class Hierarchy:
+    """Packed two-level grid for all objects (see module doc), and what the builders add to it
+    (the Gaussians, their lists, or the voxel bricks); packing.pack_accel turns it into the
+    kernels' Accel group. ``cell_items`` is empty for the voxel (reference) structure, which
+    uses ``bricks`` instead."""
 
     def __init__(self, n_obj):
         self.n_obj = n_obj
@@ -134,7 +134,7 @@ def build_gaussians(objects, support_k):
     its k-sigma support and a bounding sphere; the leaf hierarchy and its lists stay empty until
     add_halo_lists (only the leaf walk, paper mode and surface normals read them)."""
     n = len(objects)
-    acc = Accel(n)
+    acc = Hierarchy(n)
     acc.finish()
     parts = []
     acc.g_first = np.zeros(n + 1, np.int64)
@@ -339,11 +339,6 @@ def add_halo_lists(acc, support_k):
     return acc
 
 
-def build_gauss_accel(objects, support_k):
-    """Gaussians of all objects + the halo-listed leaf hierarchy."""
-    return add_halo_lists(build_gaussians(objects, support_k), support_k)
-
-
 @njit(cache=True, nogil=True)
 def _face_lists(cell, cx, cy, cz, gid, clo, chi, n_cells, g_off):
     """Per (cell, entry face) the Gaussians first met there by a ray coming from the face
@@ -405,7 +400,7 @@ def build_voxel_accel(objects):
     from ..lod.second_grid import object_bricks
 
     n = len(objects)
-    acc = Accel(n)
+    acc = Hierarchy(n)
     bricks, ranges = [], []
     for k, ob in enumerate(objects):
         if ob.grid is None:

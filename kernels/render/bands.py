@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .layout import BG_DEPTH
+
 
 def region(frame, rows, cols):
     """(row0, row1, col0, col1) of a render() call's rows and cols (None: all) in the frame."""
@@ -43,6 +45,6 @@ def passes(scene, rgba, depth, value) -> dict:
 
 def blank(nr, nc):
     """(rgba, depth, value) of a region nothing was drawn into yet: transparent, the background
-    depth (1e10), no value."""
-    return (np.zeros((nr, nc, 4), np.float32), np.full((nr, nc), 1e10, np.float32),
+    depth (BG_DEPTH), no value."""
+    return (np.zeros((nr, nc, 4), np.float32), np.full((nr, nc), BG_DEPTH, np.float32),
             np.zeros((nr, nc), np.float32))

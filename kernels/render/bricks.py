@@ -9,9 +9,7 @@ import numpy as np
 
 from ..jit import njit, parallel_njit, prange
 from ..lod.second_grid import _find
-
-LEAF = 8
-BRICK = LEAF + 2  # voxels 8c-1 .. 8c+8 per axis
+from .layout import BRICK, LEAF  # a brick: voxels 8c-1 .. 8c+8 per axis
 
 
 @njit(cache=True, inline="always")

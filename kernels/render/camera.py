@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .layout import CAM_CLIP, CAM_EX, CAM_EY, CAM_H, CAM_KIND, CAM_OX, CAM_OY, CAM_POS, CAM_ROT, CAM_SIZE, CAM_W
+
 DEFAULT_FOV = 2.0 * math.atan(18.0 / 50.0)  # Blender default: 50 mm lens, 36 mm sensor
 
 
@@ -73,12 +75,17 @@ class Camera:
         return r, m[:3, 3].copy()
 
     def packed(self) -> np.ndarray:
-        """float64 (21,): kind, W, H, ex, ey, ox, oy, R (9, row-major), pos (3), clip start, end."""
+        """float64 (CAM_SIZE,), layout.CAM: kind (1: ortho), W, H, ex, ey, ox, oy, R (9,
+        row-major), pos (3), clip start, end."""
         r, p = self.basis()
-        ex, ey, ox, oy = self.plane()
-        return np.concatenate([[1.0 if self.kind == "ortho" else 0.0, self.width, self.height,
-                                ex, ey, ox, oy], r.ravel(), p,
-                               [self.clip_start, self.clip_end]]).astype(np.float64)
+        out = np.zeros(CAM_SIZE)
+        out[CAM_KIND] = 1.0 if self.kind == "ortho" else 0.0
+        out[CAM_W], out[CAM_H] = self.width, self.height
+        out[CAM_EX], out[CAM_EY], out[CAM_OX], out[CAM_OY] = self.plane()
+        out[CAM_ROT:CAM_ROT + 9] = r.ravel()
+        out[CAM_POS:CAM_POS + 3] = p
+        out[CAM_CLIP], out[CAM_CLIP + 1] = self.clip_start, self.clip_end
+        return out
 
     # -- framing ---------------------------------------------------------------------------
     @classmethod

@@ -14,6 +14,7 @@ from . import bands, frame_setup, modes, packing
 from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds
 from .device import Device, register_device
 from .frame import Frame
+from .layout import REC_LB, Kind, Shading
 from .scene import RenderScene, same_geometry
 from .splat_scene import SplatGrids
 from .transfer import TransferFunction, resampled
@@ -171,7 +172,7 @@ class CPUDevice(Device):
         scene = self._splats.drawn(scene)
         spec = modes.spec(scene.mode)
         prep = self._prepare(spec, scene, tf)
-        mode = modes.frame_mode(spec.mode, surfaces=bool((prep[1].kind == 2).any()))
+        mode = modes.frame_mode(spec.mode, surfaces=bool((prep[1].kind == Kind.SURFACE).any()))
         key = self._frame_key(mode, scene, camera, prep, bool(lists_elsewhere))
         if self._frame is not None and self._frame.key == key:
             self.stats["seconds_setup"] = 0.0
@@ -226,15 +227,15 @@ class CPUDevice(Device):
                                            self._lit_gradients() if lit else None)
             *tiles, t_lb = self._screen_tiles(spec.mode, scene, camera, gauss.w, lists_elsewhere)
             if t_lb is not None:
-                gauss.rec[:, 7] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
-            if t_lb is None or (obj_kind == 2).any() or (objects.lit == packing.LIT_SHADOWS).any():
+                gauss.rec[:, REC_LB] = t_lb  # read with the rest of the row when a pixel tests the Gaussian
+            if t_lb is None or (obj_kind == Kind.SURFACE).any() or (objects.lit == Shading.LIT_SHADOWS).any():
                 acc = self._halo_lists()  # the leaf walk, surface normals, shadow rays
             elsewhere = lists_elsewhere and acc.g_mu.shape[0] > 0
         cell_skip = frame_setup.cell_skip(spec, acc, gauss.w, tfs, obj_tf, obj_kind)
         if spec.leaf_tiles and acc.n_cells:  # which screen tiles have leaves to walk
             tiles = self._kt.leaf_tiles(camera.packed(), objects.w2i, acc.cell_xyz, acc.cell_obj, cell_skip)
         accel = packing.pack_accel(acc, cell_skip, tuple(tiles), voxels=voxels, xfer=(obj_tf, transfer))
-        if (objects.lit == packing.LIT_SHADOWS).any():
+        if (objects.lit == Shading.LIT_SHADOWS).any():
             wext = np.zeros(1) if voxels else frame_setup.gauss_weights(
                 self.gacc, False, tfs, objects.tf, objects.kind, objects.ls)[0]  # the particles' extinction
             objects = frame_setup.shadow_grids(voxels, scene, self.index_box, objects, gauss, wext, accel,

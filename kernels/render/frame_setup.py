@@ -8,6 +8,7 @@ import numpy as np
 
 from . import packing
 from .accel import tile_budget
+from .layout import LS_COLOR, LS_CONST, LS_PLANE, LS_RANGE, Kind
 from .modes import VOXELS
 from .transfer import range_alpha
 
@@ -36,11 +37,12 @@ def gauss_weights(acc, field, tfs, obj_tf, obj_kind, obj_ls, obj_ctf=None):
         if obj_kind[k]:
             w[s] = t.density * a
             ls = obj_ls[k]
-            if ls[0] > 0.5:
-                col[s] = ls[8:11]
+            if ls[LS_CONST] > 0.5:
+                col[s] = ls[LS_COLOR:LS_COLOR + 3]
             else:
-                c = A.g_mu[s] @ ls[1:4] + ls[4]
-                x = (c - ls[5]) / (ls[6] - ls[5]) if ls[6] > ls[5] else np.full(c.shape, 0.5)
+                c = A.g_mu[s] @ ls[LS_PLANE:LS_PLANE + 3] + ls[LS_PLANE + 3]
+                lo, hi = ls[LS_RANGE], ls[LS_RANGE + 1]
+                x = (c - lo) / (hi - lo) if hi > lo else np.full(c.shape, 0.5)
                 lut_rows(t.lut, x, col[s])
         else:
             rgba = np.empty((v.shape[0], 4))
@@ -83,7 +85,7 @@ def cell_skip(spec, acc, w, tfs, obj_tf, obj_kind):
         for k in range(len(obj_tf)):
             sel = cell_obj == k
             t = tfs[obj_tf[k]]
-            if obj_kind[k] == 2:
+            if obj_kind[k] == Kind.SURFACE:
                 continue
             if obj_kind[k]:
                 skip[sel] = t.density <= 0
@@ -104,7 +106,7 @@ def cell_skip(spec, acc, w, tfs, obj_tf, obj_kind):
     for k in range(len(obj_tf)):
         sel = cobj == k
         t = tfs[obj_tf[k]]
-        if obj_kind[k] == 2:
+        if obj_kind[k] == Kind.SURFACE:
             skip[sel] = hi[sel] <= 0
         elif obj_kind[k]:
             skip[sel] = (t.density <= 0) | (hi[sel] <= 0)

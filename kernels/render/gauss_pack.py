@@ -13,6 +13,13 @@ import math
 import numpy as np
 
 from ..jit import njit, parallel_njit, prange
+from .layout import (
+    REC_INV,
+    REC_LB,
+    REC_MU,
+    REC_SIZE,
+    REC_W,
+)
 
 _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
@@ -120,16 +127,16 @@ def spheres(mu, inv, ref, obj, k, sph, volfac):
 
 @parallel_njit(**_jit)
 def test_records(mu, inv):
-    """(m, 8) rows for the per-ray Gaussian test: centre and 1/sigma, then the weight and entry
+    """(m, REC_SIZE) rows for the per-ray Gaussian test (layout.REC): centre and 1/sigma, then the weight and entry
     bound (zero here: set per frame). One parallel pass: at 22 M Gaussians the numpy version's
     column copies took 5 s, most of it first touches of the fresh rows."""
-    rec = np.empty((mu.shape[0], 8))
+    rec = np.empty((mu.shape[0], REC_SIZE))
     for g in prange(mu.shape[0]):
         for a in range(3):
-            rec[g, a] = mu[g, a]
-            rec[g, 3 + a] = inv[g, a]
-        rec[g, 6] = 0.0
-        rec[g, 7] = 0.0
+            rec[g, REC_MU + a] = mu[g, a]
+            rec[g, REC_INV + a] = inv[g, a]
+        rec[g, REC_W] = 0.0
+        rec[g, REC_LB] = 0.0
     return rec
 
 

@@ -11,6 +11,8 @@ Layout rules (common.glsl reads them):
   [i, j, k] at texel (10 sx' + i, 10 sy' + j, 10 sz' + k) (numpy's last axis is the texture's x).
 - Per mode, the mode table (at the end) holds (geometry tables, frame tables): two functions of
   a frame returning Tables; geometry is uploaded once per sync, frame tables once per frame key.
+- The records' fields (frame, objects, ...) are declared in layout.py, which the shaders get as
+  #defines too.
 """
 from __future__ import annotations
 
@@ -18,18 +20,38 @@ from collections import namedtuple
 
 import numpy as np
 
-ROW_TEXELS = 4096
+from .layout import (
+    BRICK,
+    FR_CAM,
+    FR_SET,
+    FR_SIZE,
+    LUT_SIZE,
+    MAX_OBJ,
+    OBJ_KIND,
+    OBJ_LEVEL,
+    OBJ_LIT,
+    OBJ_LS,
+    OBJ_NCLIP,
+    OBJ_NODE_DIMS,
+    OBJ_NODE_MIN,
+    OBJ_NODE_OFF,
+    OBJ_REF,
+    OBJ_SH_GRID,
+    OBJ_SIZE,
+    OBJ_STEP,
+    OBJ_TEXELS,
+    OBJ_TF,
+    OBJ_W2I,
+    OBJ_WALK_SCALE,
+    ROW_TEXELS,
+    SHG_DIMS,
+    SHG_OFFSET,
+    SHG_SIZE,
+)
+
 EXACT = float(1 << 24)
-MAX_OBJ = 16  # objects one GPU frame draws (more: the device says so)
-BRICK = 10
 ATLAS_MAX = 2040  # 3-D texture side used at most (OpenGL guarantees 2048)
 ATLAS_SLOTS = ATLAS_MAX // BRICK
-LUT_TEXELS = 256  # the transfer functions' table size (transfer.LUT_SIZE), one texture row each
-
-# Frame table (scalars): the packed camera (21), then the settings (packing.pack_settings).
-FR_CAM, FR_SET = 0, 24
-# Object table: OBJ_TEXELS texels per object (see object_rows), then its clip half-spaces.
-OBJ_TEXELS = 12
 # {name: float32 (H, ROW_TEXELS, 4) table, (n, LUT_TEXELS, 4) LUTs or (Z, Y, X) atlas},
 # {name: int push constant}
 Tables = namedtuple("Tables", "textures ints")
@@ -84,52 +106,49 @@ def brick_atlas(bricks):
 
 
 def frame_table(frame):
-    """The camera and settings as one scalar table."""
-    cam = np.zeros(FR_SET)
-    cam[:frame.cam.size] = frame.cam
-    return fold_scalars(np.concatenate([cam, frame.transfer.settings]).astype(np.float32))
+    """The camera and settings as one scalar table (layout.FR)."""
+    fr = np.zeros(FR_SIZE)
+    fr[FR_CAM:FR_CAM + frame.cam.size] = frame.cam
+    fr[FR_SET:FR_SET + frame.transfer.settings.size] = frame.transfer.settings
+    return fold_scalars(fr.astype(np.float32))
 
 
 def object_rows(frame):
-    """Per object OBJ_TEXELS texels: w2i rows 0-2; [kind, tf row, step, lit]; ls[0:4]; ls[4:8];
-    [ls 8:11, clip count]; [node_min xyz, node_off]; [node_dims xyz, walk scale]; [reference point
-    xyz, a signed-distance surface's single-layer level (packing.Objects.sdf, cbg; 0: none)]; its
-    shadow grid (packing.Objects.sh_grid: [origin xyz,
-    spacing], [dims xyz, offset in sh_tau]); then its clip half-spaces (one texel each). Returns
-    (table, texels per object)."""
+    """Per object its layout.OBJ row (OBJ_TEXELS texels: w2i rows 0-2, kind, transfer row, step,
+    shading, ls, clip count, node grid, reference point, a signed-distance surface's
+    single-layer level (packing.Objects.sdf, cbg; 0: none), shadow grid), then its clip
+    half-spaces (one texel each). Returns (table, texels per object)."""
     o, a = frame.objects, frame.accel
     n = o.w2i.shape[0]
     if n > MAX_OBJ:
         raise ValueError(f"the GPU device draws at most {MAX_OBJ} objects, not {n}")
     nclip = o.clip.shape[1]
-    rows = np.zeros((n, OBJ_TEXELS + nclip, 4))
-    rows[:, 0:3] = o.w2i[:, :3, :]
-    rows[:, 3] = np.stack([o.kind, o.tf, o.step, o.lit], 1)
-    rows[:, 4] = o.ls[:, 0:4]
-    rows[:, 5] = o.ls[:, 4:8]
-    rows[:, 6, :3] = o.ls[:, 8:11]
-    rows[:, 6, 3] = nclip
-    rows[:, 7, :3] = a.node_min[:n]
-    rows[:, 7, 3] = a.node_off[:n]
-    rows[:, 8, :3] = a.node_dims[:n]
-    rows[:, 8, 3] = a.walk_scale[:n]
+    rows = np.zeros((n, OBJ_SIZE + 4 * nclip))
+    rows[:, OBJ_W2I:OBJ_W2I + 12] = o.w2i[:, :3, :].reshape(n, 12)
+    rows[:, OBJ_KIND], rows[:, OBJ_TF], rows[:, OBJ_STEP], rows[:, OBJ_LIT] = o.kind, o.tf, o.step, o.lit
+    rows[:, OBJ_LS:OBJ_LS + o.ls.shape[1]] = o.ls
+    rows[:, OBJ_NCLIP] = nclip
+    rows[:, OBJ_NODE_MIN:OBJ_NODE_MIN + 3] = a.node_min[:n]
+    rows[:, OBJ_NODE_OFF] = a.node_off[:n]
+    rows[:, OBJ_NODE_DIMS:OBJ_NODE_DIMS + 3] = a.node_dims[:n]
+    rows[:, OBJ_WALK_SCALE] = a.walk_scale[:n]
     if o.ref.shape[0] >= n:
-        rows[:, 9, :3] = o.ref[:n]
-    rows[:, 9, 3] = np.where(o.sdf[:n] != 0, o.cbg[:n], 0.0)
-    rows[:, 10:12] = np.asarray(o.sh_grid[:n]).reshape(n, 2, 4)
-    rows[:, OBJ_TEXELS:] = o.clip
-    _exact(rows[:, 7:9], "object node grids")
-    _exact(rows[:, 11], "shadow grid sizes")
-    return fold_rows(rows.reshape(n, -1), "objects"), OBJ_TEXELS + nclip
+        rows[:, OBJ_REF:OBJ_REF + 3] = o.ref[:n]
+    rows[:, OBJ_LEVEL] = np.where(o.sdf[:n] != 0, o.cbg[:n], 0.0)
+    rows[:, OBJ_SH_GRID:OBJ_SH_GRID + SHG_SIZE] = np.asarray(o.sh_grid[:n])
+    rows[:, OBJ_SIZE:] = o.clip.reshape(n, -1)
+    _exact(rows[:, OBJ_NODE_MIN:OBJ_WALK_SCALE + 1], "object node grids")
+    _exact(rows[:, OBJ_SH_GRID + SHG_DIMS:OBJ_SH_GRID + SHG_OFFSET + 1], "shadow grid sizes")
+    return fold_rows(rows, "objects"), OBJ_TEXELS + nclip
 
 
 def transfer_tables(frame):
-    """LUTs (one texture row of LUT_TEXELS texels per transfer function), their parameters
-    (one texel each) and the lights (two texels each)."""
+    """LUTs (one texture row of LUT_SIZE texels per transfer function), their parameters
+    (one texel each, layout.PAR) and the lights (two texels each, layout.LIGHT_ROW)."""
     x = frame.transfer
     lut = np.asarray(x.lut, np.float32)
-    if lut.shape[1] != LUT_TEXELS:
-        raise ValueError(f"transfer tables of {lut.shape[1]} rows; the GPU device reads {LUT_TEXELS}")
+    if lut.shape[1] != LUT_SIZE:
+        raise ValueError(f"transfer tables of {lut.shape[1]} rows; the GPU device reads {LUT_SIZE}")
     return {"tf_lut": np.ascontiguousarray(lut), "tf_par": fold_rows(x.par),
             "lights": fold_rows(x.lights)}, x.lights.shape[0]
 

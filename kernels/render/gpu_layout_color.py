@@ -1,8 +1,9 @@
 """The GPU tables of the volumes coloured by a second grid (packing.Objects.ctf >= 0; read by
 glsl/color.glsl), plain numpy:
 
-- obj_color (gpu_layout.fold_rows, one texel per object): [colour map's transfer-function row
-  (-1: coloured by its own grid), the colour grid's background (packing.Objects.cbg), 0, 0].
+- obj_color (gpu_layout.fold_rows, one texel per object, layout.OCOL): colour map's
+  transfer-function row (-1: coloured by its own grid), the colour grid's background
+  (packing.Objects.cbg).
 - g_cval (gpu_layout.fold_scalars, particles and paper): each Gaussian's colour value (the CPU
   device's colours come from them: frame_setup.gauss_weights), NaN where it has none.
 - Reference mode: the colour grids' bricks (packing.Accel.cbricks, on the same cells) go in the
@@ -15,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import gpu_layout
+from .layout import OCOL_CBG, OCOL_CTF, OCOL_SIZE
 
 DEFINES = {"obj_color": "COLOR_GRID", "g_cval": "COLOR_VALUES"}
 
@@ -31,9 +33,9 @@ def frame_tables(frame) -> dict:
         return {}
     o = frame.objects
     n = o.w2i.shape[0]
-    rows = np.zeros((n, 4))
-    rows[:, 0] = np.asarray(o.ctf)[:n]
-    rows[:, 1] = np.where(rows[:, 0] >= 0, np.asarray(o.cbg)[:n], 0.0)
+    rows = np.zeros((n, OCOL_SIZE))
+    rows[:, OCOL_CTF] = np.asarray(o.ctf)[:n]
+    rows[:, OCOL_CBG] = np.where(rows[:, OCOL_CTF] >= 0, np.asarray(o.cbg)[:n], 0.0)
     out = {"obj_color": gpu_layout.fold_rows(rows)}
     cv = frame.color_values
     if cv is not None:

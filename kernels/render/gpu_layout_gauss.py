@@ -7,9 +7,9 @@ channel k % 4 (``flat``). Integers travel as exact floats, so each must stay bel
 (``check_exact`` says where one does not; the device then draws that frame on the CPU).
 
 Tables (name: rows x columns, what):
-- g_rec (m x 8, 32 bytes per Gaussian, the only per-Gaussian table of unlit frames): texel 0 = centre (3) and
-  the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
-  factor); texel 1 = [1/sigma x, y, z as 18-bit floats with the object (4 bits) and "has a
+- g_rec (layout.GREC, 32 bytes per Gaussian, the only per-Gaussian table of unlit frames): centre
+  (3) and the tile lists' entry bound (particles, field) or w x volfac (paper's per-step extinction
+  factor); [1/sigma x, y, z as 18-bit floats with the object (4 bits) and "has a
   value" (1 bit) in two words (size_words), w, value (0 when NaN; field mode: the weight of the
   second mixture, packing.Gaussians.cw: surfaces' signed distance x w)]. A packed word's high half
   is a normal half float's bits (range checked), so the word is a normal float32 (never NaN,
@@ -17,8 +17,8 @@ Tables (name: rows x columns, what):
   the shader takes them from the transfer function's LUT at the value (level sets: ls_color;
   volumes coloured by a second grid: their colour map at gpu_layout_color's g_cval).
 - t_start (flat, tiles + 1): each screen tile's first entry.
-- t_ent (entries x 4): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
-  20 bits (bit b of the mask: piece b // 22, bit b % 22).
+- t_ent (layout.TENT): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
+  20 bits (MASK_BITS; bit b of the mask: piece b // 22, bit b % 22).
 - g_grad (m x 4, particles mode with lit volumes, geometry: once per sync): the gradient at each
   Gaussian's centre of its object's other Gaussians' field and its own field weight
   (packing.Gaussians.grad, _cpu_lit.lit_gradients); the shader adds its own part at the chord.
@@ -31,11 +31,29 @@ from __future__ import annotations
 import numpy as np
 
 from . import gpu_layout
+from .layout import (
+    EXP_REBIAS,
+    GREC_BOUND,
+    GREC_MU,
+    GREC_SIZE,
+    GREC_VAL,
+    GREC_W,
+    GREC_WORDS,
+    MANT_DROP,
+    MASK_BITS,
+    OVERFLOW_DEPTH,
+    REC_INV,
+    REC_LB,
+    REC_MU,
+    REC_W,
+    SET_K,
+    TENT_ID,
+    TENT_MASK,
+    TENT_SIZE,
+    TILE,
+)
 
-MASK_BITS = 22
-GAUSS_COLUMNS = {"g_rec": 8}  # the per-Gaussian tables and their float32 columns
-MANT_DROP, EXP_REBIAS = 10, 112  # float32 -> 18-bit size codes: mantissa bits dropped, exponent bias
-OVERFLOW_DEPTH = -2e10  # a pixel's Depth when its ray needed more hit slots than the shader has
+GAUSS_COLUMNS = {"g_rec": GREC_SIZE}  # the per-Gaussian tables and their float32 columns
 fold, flat = gpu_layout.fold_rows, gpu_layout.fold_scalars  # importing this module registers its modes (end)
 
 
@@ -87,22 +105,23 @@ def bad_sizes(inv) -> np.ndarray:
 
 
 def gauss_tables(mode, gauss) -> dict:
-    """g_rec for a frame's Gaussians (packing.Gaussians); paper: column 3 = w x volfac."""
+    """g_rec for a frame's Gaussians (packing.Gaussians); paper: GREC_BOUND = w x volfac."""
     from .scene import Mode
 
     rec = np.asarray(gauss.rec, np.float64)
     m = rec.shape[0]
     val = np.asarray(gauss.val, np.float64)
     ok = ~np.isnan(val)
-    out = np.zeros((m, 8), np.float32)
-    out[:, 0:3] = rec[:, 0:3]
-    out[:, 3] = gauss.w * gauss.volfac if mode == Mode.PAPER else rec[:, 7]
+    out = np.zeros((m, GREC_SIZE), np.float32)
+    out[:, GREC_MU:GREC_MU + 3] = rec[:, REC_MU:REC_MU + 3]
+    out[:, GREC_BOUND] = gauss.w * gauss.volfac if mode == Mode.PAPER else rec[:, REC_LB]
     # (a size beyond the codes' range reads as 1: only weight-0 Gaussians, see unsupported)
-    out[:, 4:6] = size_words(rec[:, 3:6], np.asarray(gauss.obj, np.int64) | (ok.astype(np.int64) << 4))
-    out[:, 6] = rec[:, 6]
-    out[:, 7] = np.where(ok, val, 0.0)
+    out[:, GREC_WORDS:GREC_WORDS + 2] = size_words(rec[:, REC_INV:REC_INV + 3],
+                                                   np.asarray(gauss.obj, np.int64) | (ok.astype(np.int64) << 4))
+    out[:, GREC_W] = rec[:, REC_W]
+    out[:, GREC_VAL] = np.where(ok, val, 0.0)
     if mode == Mode.FIELD and np.shape(gauss.cw) == (m,):  # the field reads no values
-        out[:, 7] = gauss.cw
+        out[:, GREC_VAL] = gauss.cw
     return {"g_rec": fold(out)}
 
 
@@ -113,9 +132,9 @@ def bytes_per_gaussian() -> int:
 
 def tile_tables(start, items, masks) -> dict:
     """t_start and t_ent from the frame's screen-tile lists (_cpu_tiles)."""
-    ent = np.zeros((max(1, len(items)), 4))
-    ent[:len(items), 0] = items
-    ent[:len(items), 1:] = mask_pieces(masks)
+    ent = np.zeros((max(1, len(items)), TENT_SIZE))
+    ent[:len(items), TENT_ID] = items
+    ent[:len(items), TENT_MASK:TENT_MASK + 3] = mask_pieces(masks)
     return {"t_start": flat(start), "t_ent": fold(ent)}
 
 
@@ -127,7 +146,6 @@ def frame_tiles(frame):
     from .frame import NOT_BUILT
     from .frame_setup import MAX_TILE_ENTRIES
     from .modes import spec
-    from .packing import SET_K
 
     if spec(frame.mode).screen_tiles:
         a = frame.accel
@@ -146,7 +164,7 @@ def unsupported(frame) -> str | None:
     the CPU), or None: no screen-tile lists (switched off or too many entries), or an index past
     the floats' exact range, or a 1/sigma beyond the size codes."""
     rec = frame.gauss.rec
-    if (bad_sizes(rec[:, 3:6]) & (rec[:, 6] != 0)).any():
+    if (bad_sizes(rec[:, REC_INV:REC_INV + 3]) & (rec[:, REC_W] != 0)).any():
         return "a Gaussian too small or large for the GPU's size codes"
     if on_gpu(frame):  # the device checks the entries' count when it builds them
         return check_exact(gaussians=[frame.gauss.rec.shape[0]])
@@ -165,8 +183,6 @@ def on_gpu(frame):
 def overflow_tiles(depth, row0=0, col0=0):
     """The screen tiles (image rows (a, b), columns (c, d), clipped to the region drawn from row0,
     col0) holding a pixel whose Depth is OVERFLOW_DEPTH: the device draws those on the CPU."""
-    from ._cpu_tiles import TILE
-
     rows, cols = np.nonzero(np.asarray(depth) == np.float32(OVERFLOW_DEPTH))
     nr, nc = np.shape(depth)
     out = []

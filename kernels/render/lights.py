@@ -13,8 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .layout import LIGHT_KIND, LIGHT_RGB, LIGHT_SIZE, LIGHT_VEC, LightKind
+
 KINDS = ("sun", "point")
-HEADLIGHT = 2.0  # packed kind of the default light
 
 
 @dataclass
@@ -35,17 +36,21 @@ class Light:
 
 
 def pack(lights) -> np.ndarray:
-    """(n, 8) float64 rows [kind, x, y, z, r, g, b, 0]: suns with their unit travel direction and
-    colour x irradiance, points with their position and colour x power / 4 pi; the headlight
-    alone when there are none."""
+    """(n, LIGHT_SIZE) float64 rows, layout.LIGHT_ROW [kind, x, y, z, r, g, b, 0]: suns with their
+    unit travel direction and colour x irradiance, points with their position and colour x
+    power / 4 pi; the headlight (white) alone when there are none."""
     if not lights:
-        return np.array([[HEADLIGHT, 0, 0, 0, 1.0, 1.0, 1.0, 0.0]])
-    out = np.zeros((len(lights), 8))
+        out = np.zeros((1, LIGHT_SIZE))
+        out[0, LIGHT_KIND] = LightKind.HEADLIGHT
+        out[0, LIGHT_RGB:LIGHT_RGB + 3] = 1.0
+        return out
+    out = np.zeros((len(lights), LIGHT_SIZE))
     for i, lt in enumerate(lights):
         v = np.asarray(lt.vector, np.float64)
         c = np.asarray(lt.color, np.float64)[:3] * float(lt.strength)
         if lt.kind == "sun":
-            out[i, 0], out[i, 1:4], out[i, 4:7] = 0.0, v / np.linalg.norm(v), c
+            out[i, LIGHT_KIND], vec, rgb = LightKind.SUN, v / np.linalg.norm(v), c
         else:
-            out[i, 0], out[i, 1:4], out[i, 4:7] = 1.0, v, c / (4.0 * math.pi)
+            out[i, LIGHT_KIND], vec, rgb = LightKind.POINT, v, c / (4.0 * math.pi)
+        out[i, LIGHT_VEC:LIGHT_VEC + 3], out[i, LIGHT_RGB:LIGHT_RGB + 3] = vec, rgb
     return out

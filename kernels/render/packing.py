@@ -14,6 +14,31 @@ import numpy as np
 
 from ..lod.levelset import surface_level
 from . import clip, gauss_pack, lights, modes
+from .layout import (
+    LS_COLOR,
+    LS_CONST,
+    LS_PLANE,
+    LS_RANGE,
+    LS_SIZE,
+    LS_VOXEL,
+    PAR_LOG,
+    PAR_VMAX,
+    PAR_VMIN,
+    REC_SIZE,
+    REC_W,
+    SET_BG,
+    SET_K,
+    SET_LIT_THRESHOLD,
+    SET_PAPER_DEPTH,
+    SET_PAPER_STEPS,
+    SET_SHADING,
+    SET_SIZE,
+    SET_TAU_MAX,
+    SET_TMIN,
+    SHG_SIZE,
+    Kind,
+    Shading,
+)
 
 # Per Gaussian (index space, all objects one after the other). rec: what the per-ray test reads,
 # one 64-byte row each: centre, 1/sigma, this frame's extinction weight w, the entry bound (tile
@@ -24,18 +49,16 @@ from . import clip, gauss_pack, lights, modes
 # grad: lit volumes in particles mode, the gradient of the other Gaussians' field at its centre
 # and its own field weight (value x amplitude), one dummy row otherwise.
 Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi cw grad")
-# Per object: world -> index matrix, kind (0 volume, 1 level-set shell, 2 level-set surface),
-# its transfer function's row, level-set colouring (see pack_objects), sample step in voxels,
-# clip half-spaces (clip.pack), the float32 reference point of the bounding spheres, shading (0
-# emission, LIT, LIT_SHADOWS: volumes only, see pack_objects) and the lit volumes' shadow grids
-# (sh_grid rows [origin xyz, spacing, dims xyz, offset into sh_tau]; sh_tau: the optical depth
+# Per object: world -> index matrix, kind (layout.Kind), its transfer function's row, level-set
+# colouring (ls, layout.LS), sample step in voxels, clip half-spaces (clip.pack), the float32
+# reference point of the bounding spheres, shading (layout.Shading: volumes only, see
+# pack_objects) and the lit volumes' shadow grids (sh_grid rows, layout.SHG; sh_tau: the optical depth
 # towards each light at each grid point, light fastest; _cpu_lit) and, for a volume coloured by a
 # second grid, its colour map's transfer-function row (-1: coloured by its own values) and that
 # grid's background (its value where no Gaussian is: the field adds it to the colour mixture);
 # sdf: 1 for a surface whose Gaussians carry signed distances (their mixture is carried as the
 # colour mixture is; cbg: its single-layer level, levelset.surface_level: _cpu_surface.field_crossing).
 Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf cbg sdf")
-LIT, LIT_SHADOWS = 1, 2
 # Acceleration: the leaf hierarchy (node grids, node -> cell tables: per object its leaves, then
 # the grids of coarser cells that hold the larger Gaussians), the cells' Gaussian lists (and per
 # entry face), this frame's empty-space skips, voxel bricks (reference mode), the longest walk,
@@ -67,20 +90,20 @@ Scratch = namedtuple("Scratch", "iv_ta iv_tb iv_obj iv_cell srt bnd act_iv cov_o
 # keys, hits), the active set (field; particles: the members carried over), the members.
 Hits = namedtuple("Hits", "rec hid ev_t ev_k ev_h act mem")
 
-# settings columns
-(SET_TMIN, SET_TAU_MAX, SET_K, SET_BG, SET_PAPER_STEPS, SET_PAPER_DEPTH,
- SET_SHADING, SET_LIT_THRESHOLD) = 0, 1, 2, 3, 7, 8, 9, 13
-
-
 def pack_settings(scene) -> np.ndarray:
-    """[T_min, tau_max, k, background rgba, paper_steps, paper_max_depth, Blinn-Phong shading
-    (ambient, diffuse, specular, shininess), lit volumes' gradient threshold]."""
+    """layout.SET: T_min, tau_max, k, background rgba, paper_steps, paper_max_depth, Blinn-Phong
+    shading (ambient, diffuse, specular, shininess), lit volumes' gradient threshold."""
     bg = np.asarray(scene.background, np.float64).ravel()
-    bg = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
-    return np.array([max(float(scene.transmittance_min), 0.0), float(scene.tau_max),
-                     float(scene.support_k), bg[0], bg[1], bg[2], bg[3],
-                     float(scene.paper_steps), float(scene.paper_max_depth),
-                     *(float(v) for v in scene.shading), float(scene.lit_threshold)])
+    out = np.zeros(SET_SIZE)
+    out[SET_TMIN] = max(float(scene.transmittance_min), 0.0)
+    out[SET_TAU_MAX] = float(scene.tau_max)
+    out[SET_K] = float(scene.support_k)
+    out[SET_BG:SET_BG + 4] = np.concatenate([bg, [1.0] * (4 - bg.size)])[:4]
+    out[SET_PAPER_STEPS] = float(scene.paper_steps)
+    out[SET_PAPER_DEPTH] = float(scene.paper_max_depth)
+    out[SET_SHADING:SET_SHADING + 4] = [float(v) for v in scene.shading]
+    out[SET_LIT_THRESHOLD] = float(scene.lit_threshold)
+    return out
 
 
 def transfer_functions(scene, tf, resample):
@@ -113,40 +136,41 @@ def pack_transfer(scene, tfs) -> Transfer:
 
 
 def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=None) -> Objects:
-    """ls rows: [0] 1 for a constant colour (rgb in [8:11]), else 0 and a colormap over the world
-    coordinate [1:5] . (x, y, z, 1) of index points across [5:7]; [7] the voxel's world size.
-    Level sets are surfaces where the mode draws them (modes: surfaces; else shells); only volumes
-    are lit, where the mode has lights. The shadow grids are the device's to fill (no_shadows until then).
+    """ls rows (layout.LS): CONST 1 for a constant colour (rgb in COLOR), else 0 and a colormap
+    over the world coordinate PLANE . (x, y, z, 1) of index points across RANGE; VOXEL the
+    voxel's world size. Level sets are surfaces where the mode draws them (modes: surfaces; else
+    shells); only volumes are lit, where the mode has lights. The shadow grids are the device's to
+    fill (no_shadows until then).
     obj_ctf: color_functions' rows (None: no object coloured by a second grid)."""
     objs = scene.objects
     n = len(objs)
     spec = modes.spec(scene.mode)
-    kind = np.array([(2 if o.surface and spec.surfaces else 1) if o.is_level_set else 0
-                     for o in objs], np.int32)
-    ls = np.zeros((n, 11))
+    kind = np.array([(Kind.SURFACE if o.surface and spec.surfaces else Kind.SHELL)
+                     if o.is_level_set else Kind.FOG for o in objs], np.int32)
+    ls = np.zeros((n, LS_SIZE))
     axes = {"x": 0, "y": 1, "z": 2}
     for k, o in enumerate(objs):
         c = o.level_set_color
         if isinstance(c, str):
             ax = axes[c.lower()]
-            ls[k, 0] = 0.0
-            ls[k, 1:5] = o.matrix_world[ax]
-            ls[k, 5:7] = coord_range[k, ax]
+            ls[k, LS_CONST] = 0.0
+            ls[k, LS_PLANE:LS_PLANE + 4] = o.matrix_world[ax]
+            ls[k, LS_RANGE:LS_RANGE + 2] = coord_range[k, ax]
         else:
-            ls[k, 0] = 1.0
-            ls[k, 8:11] = np.asarray(c, np.float64)[:3]
-        ls[k, 7] = voxel_world[k]
+            ls[k, LS_CONST] = 1.0
+            ls[k, LS_COLOR:LS_COLOR + 3] = np.asarray(c, np.float64)[:3]
+        ls[k, LS_VOXEL] = voxel_world[k]
     step = np.full(n, float(scene.step))
-    lit = np.array([(LIT_SHADOWS if o.shadows else LIT)
-                    if o.shading == "lit" and not o.is_level_set and spec.lights else 0
-                    for o in objs], np.int32)
+    lit = np.array([(Shading.LIT_SHADOWS if o.shadows else Shading.LIT)
+                    if o.shading == "lit" and not o.is_level_set and spec.lights
+                    else Shading.EMISSION for o in objs], np.int32)
     ctf = np.full(max(n, 1), -1, np.int32) if obj_ctf is None else np.asarray(obj_ctf, np.int32)
     cbg = np.zeros(max(n, 1))
     sdf = np.zeros(max(n, 1), np.int32)
     for k, o in enumerate(objs):
         if ctf[k] >= 0:
             cbg[k] = float(getattr(o.gaussians, "color_background", 0.0) or 0.0)
-        sdf[k] = kind[k] == 2 and getattr(o.gaussians, "distances", None) is not None
+        sdf[k] = kind[k] == Kind.SURFACE and getattr(o.gaussians, "distances", None) is not None
         if sdf[k]:
             cbg[k] = surface_level(o.gaussians.index_to_world)
     return Objects(w2i, kind, obj_tf, ls, step, clip.pack(objs), obj_ref, lit, *no_shadows(n), ctf,
@@ -155,7 +179,7 @@ def pack_objects(scene, obj_tf, w2i, coord_range, voxel_world, obj_ref, obj_ctf=
 
 def no_shadows(n):
     """sh_grid, sh_tau for n objects without shadow grids (dims 0)."""
-    return np.zeros((max(n, 1), 8)), np.zeros(1)
+    return np.zeros((max(n, 1), SHG_SIZE)), np.zeros(1)
 
 
 NO_GRAD = np.zeros((1, 4))  # Gaussians.grad where no lit volume is drawn in particles mode
@@ -166,18 +190,18 @@ def empty_gaussians() -> Gaussians:
     z3 = np.zeros((1, 3))
     zc = np.zeros((1, 3), np.int64)
     return Gaussians(z3, z3, np.zeros(1), np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int32),
-                     np.zeros(1), np.zeros((1, 8)), np.zeros((1, 4), np.float32), zc, zc, np.zeros(1),
+                     np.zeros(1), np.zeros((1, REC_SIZE)), np.zeros((1, 4), np.float32), zc, zc, np.zeros(1),
                      NO_GRAD)
 
 
 def pack_gaussians(acc, w, col, rec, cw=None, grad=None) -> Gaussians:
     """The synced Gaussians with this frame's weights w and colours col; rec: the device's
-    (m, 8) test records, rewritten here (centre and 1/sigma kept from sync, column 6 = w); cw:
+    test records (layout.REC), rewritten here (centre and 1/sigma kept from sync, REC_W = w); cw:
     the colour grids' field weights (None: no object coloured by a second grid); grad: lit
     particles' (m, 4) gradients (see Gaussians), or None."""
     if acc.g_mu.shape[0] == 0:
         return empty_gaussians()
-    rec[:, 6] = w
+    rec[:, REC_W] = w
     sph = acc.g_sph if acc.g_sph.shape[0] else np.zeros((1, 4), np.float32)
     return Gaussians(acc.g_mu, acc.g_inv, w, col, acc.g_val, acc.g_obj, acc.g_volfac, rec, sph,
                      acc.g_clo, acc.g_chi, np.zeros(1) if cw is None else cw,
@@ -185,7 +209,7 @@ def pack_gaussians(acc, w, col, rec, cw=None, grad=None) -> Gaussians:
 
 
 def test_records(acc):
-    """(m, 8) rows for the per-ray Gaussian test: centre and 1/sigma filled, weight and entry
+    """(m, REC_SIZE) rows for the per-ray Gaussian test: centre and 1/sigma filled, weight and entry
     bound per frame (pack_gaussians, the tile lists)."""
     return gauss_pack.test_records(acc.g_mu, acc.g_inv)
 
@@ -230,8 +254,8 @@ def clear_bits(sub_max, cell_obj, obj_tf, xfer, chunk=1 << 14):
     thr = np.full(len(obj_tf), -np.inf)
     le = np.zeros(len(obj_tf), bool)  # v == thr is transparent too
     for k, row in enumerate(obj_tf):
-        lo, hi = xfer.par[row, 0], xfer.par[row, 1]
-        if xfer.par[row, 2] < 0.5 and xfer.lut[row, 0, 3] == 0.0:
+        lo, hi = xfer.par[row, PAR_VMIN], xfer.par[row, PAR_VMAX]
+        if xfer.par[row, PAR_LOG] < 0.5 and xfer.lut[row, 0, 3] == 0.0:
             thr[k], le[k] = (lo, True) if hi > lo else (hi, False)
     bit = np.left_shift(np.uint64(1), np.arange(sub_max.shape[1], dtype=np.uint64))
     out = np.zeros(sub_max.shape[0], np.uint64)

@@ -12,8 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .colormaps import colormap, srgb_to_linear
-
-LUT_SIZE = 256
+from .layout import LUT_SIZE, PAR_DENSITY, PAR_LOG, PAR_SIZE, PAR_VMAX, PAR_VMIN
 
 
 @dataclass
@@ -105,8 +104,12 @@ class TransferFunction:
         return np.where(np.isnan(v)[..., None], 0.0, out)
 
     def packed(self) -> np.ndarray:
-        """(vmin, vmax, log_scale, density) float64 for the kernels."""
-        return np.array([self.vmin, self.vmax, 1.0 if self.log_scale else 0.0, self.density])
+        """float64 (PAR_SIZE,), layout.PAR: vmin, vmax, log_scale, density."""
+        out = np.zeros(PAR_SIZE)
+        out[PAR_VMIN], out[PAR_VMAX] = self.vmin, self.vmax
+        out[PAR_LOG] = 1.0 if self.log_scale else 0.0
+        out[PAR_DENSITY] = self.density
+        return out
 
 
 def value_range(values, log_scale=False):

@@ -94,6 +94,6 @@ def test_object_rows_hold_the_matrix_kind_and_clips(frame):
     np.testing.assert_allclose(texel(objs, L.OBJ_TEXELS + 1), o.clip[0, 1], rtol=1e-6)
     t = L.reference_frame(frame)
     assert t.ints == {"n_obj": 1, "obj_texels": per, "n_lights": frame.transfer.lights.shape[0]}
-    assert t.textures["tf_lut"].shape == (1, L.LUT_TEXELS, 4)
+    assert t.textures["tf_lut"].shape == (1, L.LUT_SIZE, 4)
     cam = [scalar(t.textures["frame"], L.FR_CAM + k) for k in range(21)]
     np.testing.assert_allclose(cam, frame.cam, rtol=1e-6)

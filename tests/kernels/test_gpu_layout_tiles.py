@@ -2,7 +2,7 @@
 as tiles.glsl reads them, the prefix sum, and the CPU's lists as the fallback tables."""
 import numpy as np
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, layout
 from kernels.render import gpu_layout_gauss as LG
 from kernels.render import gpu_layout_tiles as L
 from kernels.render._cpu_tiles import tile_camera
@@ -38,7 +38,7 @@ def test_inputs_read_back():
     par = t["tl_par"].reshape(-1)
     assert tuple(par[:2]) == (24, 16)
     cmat, onorm = tile_camera(fr.cam, [np.linalg.inv(w) for w in fr.objects.w2i])
-    o = (L.PAR_OBJ + L.OBJ_TEXELS) * 4  # the second object's
+    o = layout.TLP_SIZE + layout.TLO_SIZE  # the second object's
     np.testing.assert_allclose(par[o:o + 12], cmat[1].ravel(), rtol=1e-6, atol=1e-5)
     assert par[o + 12] == np.float32(onorm[1]) and onorm[1] > 1.4
 

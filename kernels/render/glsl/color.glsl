@@ -5,13 +5,13 @@
 /* object ob's colour map (its transfer-function row; -1: coloured by its own grid) */
 int color_tf(int ob)
 {
-  return int(texel(obj_color, ob).x);
+  return int(texel(obj_color, ob)[OCOL_CTF]);
 }
 
 /* the colour grid's background: its value where no Gaussian is (field mode's second mixture) */
 float color_background(int ob)
 {
-  return texel(obj_color, ob).y;
+  return texel(obj_color, ob)[OCOL_CBG];
 }
 
 /* colour map c at value cv (NaN: black) */

@@ -1,22 +1,12 @@
 /* GaussVDB GPU device: what every mode shares. Create-info dialect: the resources (samplers
  * frame, objs, tf_lut, tf_par, lights and the mode's; images out_rgba, out_dv; push constants
  * row0, col0, nrows, ncols, n_obj, obj_texels, n_lights and the mode's; sh_tau) are declared by the glue
- * (gaussvdb_addon/gpu/compute.py). Tables: kernels/render/gpu_layout.py. Float32 throughout:
- * the CPU device's float64 steps, in the same order. */
+ * (gaussvdb_addon/gpu/compute.py), and with them every record's field offsets and the shared
+ * constants (CAM_*, SET_*, OBJ_*, LS_*, PAR_*, LEAF, BG_DEPTH, KIND_*, ...: kernels/render/layout.py).
+ * Tables: kernels/render/gpu_layout.py. Float32 throughout: the CPU device's float64 steps, in the
+ * same order. */
 
-#define ROW_TEXELS 4096
 #define INF (1.0 / 0.0)
-#define BG_DEPTH 1e10
-#define LEAF 8.0
-#define NL 16
-#define FR_CAM 0
-#define FR_SET 24
-#define SET_TMIN 0
-#define SET_BG 3
-#define SET_SHADING 9
-#define OBJ_TEXELS 12
-#define SET_LIT_THRESHOLD 13
-#define OVERFLOW_DEPTH (-2e10)  /* gpu_layout_gauss.OVERFLOW_DEPTH: the device draws the pixel's tile on the CPU */
 
 /* -- table fetches ------------------------------------------------------------------------- */
 vec4 texel(sampler2D t, int e)
@@ -43,9 +33,31 @@ float fr(int k)
 {
   return scalar(frame, k);
 }
+/* the camera's field k (CAM_*), a setting (SET_*) */
+float cam(int k)
+{
+  return fr(FR_CAM + k);
+}
+float setting(int k)
+{
+  return fr(FR_SET + k);
+}
 vec4 obj_texel(int ob, int k)
 {
   return row_texel(objs, ob, obj_texels, k);
+}
+/* float e of object ob's row (OBJ_*); the three from e (e % 4 == 0); field k of its ls (LS_*) */
+float obj_at(int ob, int e)
+{
+  return scalar(objs, ob * obj_texels * 4 + e);
+}
+vec3 obj_vec3(int ob, int e)
+{
+  return obj_texel(ob, e >> 2).xyz;
+}
+float ls_at(int ob, int k)
+{
+  return obj_at(ob, OBJ_LS + k);
 }
 
 /* -- the ray ------------------------------------------------------------------------------- */
@@ -53,12 +65,12 @@ vec4 obj_texel(int ob, int k)
 vec3 g_ro[MAX_OBJ];
 vec3 g_rd[MAX_OBJ];
 vec2 g_rclip[MAX_OBJ];
-/* each object's kind (0 volume, 1 level-set shell, 2 surface), transfer function row and its
- * parameters (vmin, vmax, log, density), read once per pixel */
+/* each object's kind (KIND_*), transfer function row and its parameters (PAR_*), read once per
+ * pixel */
 int g_kind[MAX_OBJ];
 int g_tfi[MAX_OBJ];
 vec4 g_par[MAX_OBJ];
-int g_lit[MAX_OBJ]; /* 0 emission, 1 lit, 2 lit with shadows (packing.LIT, LIT_SHADOWS) */
+int g_lit[MAX_OBJ]; /* SHADING_* */
 
 struct Ray {
   vec3 o, d; /* world origin, unit direction */
@@ -67,17 +79,18 @@ struct Ray {
 
 Ray camera_ray(int i, int j)
 {
-  float W = fr(FR_CAM + 1), Hh = fr(FR_CAM + 2);
-  float ex = fr(FR_CAM + 3), ey = fr(FR_CAM + 4), offx = fr(FR_CAM + 5), offy = fr(FR_CAM + 6);
+  float W = cam(CAM_W), Hh = cam(CAM_H);
+  float ex = cam(CAM_EX), ey = cam(CAM_EY), offx = cam(CAM_OX), offy = cam(CAM_OY);
   float py = ((float(j) + 0.5) / Hh - 0.5) * ey + offy;
   float px = ((float(i) + 0.5) / W - 0.5) * ex + offx;
-  vec3 r0 = vec3(fr(FR_CAM + 7), fr(FR_CAM + 8), fr(FR_CAM + 9));
-  vec3 r1 = vec3(fr(FR_CAM + 10), fr(FR_CAM + 11), fr(FR_CAM + 12));
-  vec3 r2 = vec3(fr(FR_CAM + 13), fr(FR_CAM + 14), fr(FR_CAM + 15));
-  vec3 pos = vec3(fr(FR_CAM + 16), fr(FR_CAM + 17), fr(FR_CAM + 18));
-  float clip0 = fr(FR_CAM + 19), clip1 = fr(FR_CAM + 20);
+  /* the rotation's rows (CAM_ROT, row-major) and the position */
+  vec3 r0 = vec3(cam(CAM_ROT), cam(CAM_ROT + 1), cam(CAM_ROT + 2));
+  vec3 r1 = vec3(cam(CAM_ROT + 3), cam(CAM_ROT + 4), cam(CAM_ROT + 5));
+  vec3 r2 = vec3(cam(CAM_ROT + 6), cam(CAM_ROT + 7), cam(CAM_ROT + 8));
+  vec3 pos = vec3(cam(CAM_POS), cam(CAM_POS + 1), cam(CAM_POS + 2));
+  float clip0 = cam(CAM_CLIP), clip1 = cam(CAM_CLIP + 1);
   Ray r;
-  if (fr(FR_CAM) < 0.5) {
+  if (cam(CAM_KIND) < 0.5) {
     vec3 dc = vec3(r0.x * px + r0.y * py - r0.z, r1.x * px + r1.y * py - r1.z,
                    r2.x * px + r2.y * py - r2.z);
     float nrm = length(dc);
@@ -99,7 +112,7 @@ Ray camera_ray(int i, int j)
 vec2 clip_interval(int ob, vec3 o, vec3 d)
 {
   float lo = -INF, hi = INF;
-  int nclip = int(obj_texel(ob, 6).w);
+  int nclip = int(obj_at(ob, OBJ_NCLIP));
   for (int k = 0; k < nclip; k++) {
     vec4 hs = obj_texel(ob, OBJ_TEXELS + k);
     float num = dot(hs.xyz, o) + hs.w;
@@ -117,17 +130,22 @@ vec2 clip_interval(int ob, vec3 o, vec3 d)
   return vec2(lo, hi);
 }
 
+/* row r of object ob's world -> index matrix (OBJ_W2I, 3 x 4) */
+vec4 w2i_row(int ob, int r)
+{
+  return obj_texel(ob, (OBJ_W2I >> 2) + r);
+}
+
 void object_rays(Ray r)
 {
   for (int ob = 0; ob < n_obj; ob++) {
-    vec4 m0 = obj_texel(ob, 0), m1 = obj_texel(ob, 1), m2 = obj_texel(ob, 2);
+    vec4 m0 = w2i_row(ob, 0), m1 = w2i_row(ob, 1), m2 = w2i_row(ob, 2);
     g_ro[ob] = vec3(dot(m0.xyz, r.o) + m0.w, dot(m1.xyz, r.o) + m1.w, dot(m2.xyz, r.o) + m2.w);
     g_rd[ob] = vec3(dot(m0.xyz, r.d), dot(m1.xyz, r.d), dot(m2.xyz, r.d));
     g_rclip[ob] = clip_interval(ob, r.o, r.d);
-    vec4 o3 = obj_texel(ob, 3);
-    g_kind[ob] = int(o3.x);
-    g_tfi[ob] = int(o3.y);
-    g_lit[ob] = int(o3.w);
+    g_kind[ob] = int(obj_at(ob, OBJ_KIND));
+    g_tfi[ob] = int(obj_at(ob, OBJ_TF));
+    g_lit[ob] = int(obj_at(ob, OBJ_LIT));
     g_par[ob] = texel(tf_par, g_tfi[ob]);
   }
 }
@@ -168,29 +186,28 @@ vec2 slab(vec3 o, vec3 d, vec3 lo, vec3 hi, float t0, float t1)
   return vec2(t0, t1);
 }
 
-/* object ob's leaves (its node grid: objs texels 7, 8) along its index ray over [tn, tf] */
+/* object ob's leaves (its node grid: OBJ_NODE_*) along its index ray over [tn, tf] */
 Walk walk_start(int ob, float tn, float tf)
 {
   Walk w;
-  vec4 a = obj_texel(ob, 7), b = obj_texel(ob, 8);
   w.ob = ob;
-  w.nmin = ivec3(a.xyz);
-  w.noff = int(a.w);
-  w.ndims = ivec3(b.xyz);
-  w.size = LEAF * b.w;
+  w.nmin = ivec3(obj_vec3(ob, OBJ_NODE_MIN));
+  w.noff = int(obj_at(ob, OBJ_NODE_OFF));
+  w.ndims = ivec3(obj_vec3(ob, OBJ_NODE_DIMS));
+  w.size = float(LEAF) * obj_at(ob, OBJ_WALK_SCALE);
   w.q = g_ro[ob] + 0.5;
   w.d = g_rd[ob];
   w.done = w.ndims.x == 0;
   if (w.done) {
     return w;
   }
-  float node = w.size * float(NL);
+  float node = w.size * float(NODE_LEAVES);
   vec2 tt = slab(w.q, w.d, vec3(w.nmin) * node, vec3(w.nmin + w.ndims) * node, tn, tf);
   w.done = !(tt.x < tt.y);
   w.t = tt.x;
   w.t1 = tt.y;
-  w.lo = w.nmin * NL;
-  w.hi = (w.nmin + w.ndims) * NL;
+  w.lo = w.nmin * NODE_LEAVES;
+  w.hi = (w.nmin + w.ndims) * NODE_LEAVES;
   for (int k = 0; k < 3; k++) {
     int c = int(floor((w.q[k] + w.t * w.d[k]) / w.size));
     c = clamp(c, w.lo[k], w.hi[k] - 1);
@@ -216,7 +233,7 @@ Walk walk_start(int ob, float tn, float tf)
 
 int floor_div16(int c)
 {
-  return c >= 0 ? c / NL : -((NL - 1 - c) / NL);
+  return c >= 0 ? c / NODE_LEAVES : -((NODE_LEAVES - 1 - c) / NODE_LEAVES);
 }
 
 /* the cell id at leaf-cell coordinates c, or -1 */
@@ -228,8 +245,9 @@ int cell_at(Walk w, ivec3 c)
   if (nid < 0) {
     return -1;
   }
-  ivec3 l = c - n * NL;
-  return iscalar(node_cells, nid * NL * NL * NL + (l.x * NL + l.y) * NL + l.z);
+  ivec3 l = c - n * NODE_LEAVES;
+  return iscalar(node_cells, nid * NODE_LEAVES * NODE_LEAVES * NODE_LEAVES
+                 + (l.x * NODE_LEAVES + l.y) * NODE_LEAVES + l.z);
 }
 
 /* the next non-empty, not skipped cell's interval [ta, tb] and id (skip: cell_skipped(id)) */
@@ -271,8 +289,8 @@ bool walk_next(inout Walk w, out float ta, out float tb, out int cid)
 /* -- transfer functions (_cpu_math: tf_x, lut_pos, sample_color) ---------------------------- */
 vec4 lut_at(int tfi, float x)
 {
-  float f = x * float(LUT_TEXELS - 1);
-  int i = clamp(int(f), 0, LUT_TEXELS - 2);
+  float f = x * float(LUT_SIZE - 1);
+  int i = clamp(int(f), 0, LUT_SIZE - 2);
   float w = f - float(i);
   return texelFetch(tf_lut, ivec2(i, tfi), 0) * (1.0 - w) + texelFetch(tf_lut, ivec2(i + 1, tfi), 0) * w;
 }
@@ -289,13 +307,14 @@ float tf_x(float v, vec4 par)
   if (isnan(v)) {
     return v;
   }
-  if (par.z > 0.5) {
-    float lo = log10f(par.x), hi = log10f(par.y);
+  if (par[PAR_LOG] > 0.5) {
+    float lo = log10f(par[PAR_VMIN]), hi = log10f(par[PAR_VMAX]);
     float lv = v > 0.0 ? log10f(v) : -INF;
     x = hi > lo ? (lv - lo) / (hi - lo) : (lv >= hi ? 1.0 : 0.0);
   }
   else {
-    x = par.y > par.x ? (v - par.x) / (par.y - par.x) : (v >= par.y ? 1.0 : 0.0);
+    float vmin = par[PAR_VMIN], vmax = par[PAR_VMAX];
+    x = vmax > vmin ? (v - vmin) / (vmax - vmin) : (v >= vmax ? 1.0 : 0.0);
   }
   return clamp(x, 0.0, 1.0);
 }
@@ -303,12 +322,13 @@ float tf_x(float v, vec4 par)
 /* a level set's albedo at index point p: constant, or the colormap over a world coordinate */
 vec3 ls_color(int ob, int tfi, vec3 p)
 {
-  vec4 l0 = obj_texel(ob, 4), l1 = obj_texel(ob, 5), l2 = obj_texel(ob, 6);
-  if (l0.x > 0.5) {
-    return l2.xyz;
+  if (ls_at(ob, LS_CONST) > 0.5) {
+    return vec3(ls_at(ob, LS_COLOR), ls_at(ob, LS_COLOR + 1), ls_at(ob, LS_COLOR + 2));
   }
-  float c = l0.y * p.x + l0.z * p.y + l0.w * p.z + l1.x;
-  float u = l1.z > l1.y ? (c - l1.y) / (l1.z - l1.y) : 0.5;
+  float c = ls_at(ob, LS_PLANE) * p.x + ls_at(ob, LS_PLANE + 1) * p.y + ls_at(ob, LS_PLANE + 2) * p.z
+            + ls_at(ob, LS_PLANE + 3);
+  float lo = ls_at(ob, LS_RANGE), hi = ls_at(ob, LS_RANGE + 1);
+  float u = hi > lo ? (c - lo) / (hi - lo) : 0.5;
   return lut_at(tfi, clamp(u, 0.0, 1.0)).rgb;
 }
 
@@ -320,12 +340,12 @@ void sample_color(int ob, int kind, float s, vec3 p, out float sig, out vec3 col
   sig = 0.0;
   col = vec3(0.0);
   val = 0.0 / 0.0;
-  if (kind == 1) {
+  if (kind == KIND_SHELL) {
     float occ = min(s, 1.0);
     if (!(occ > 0.0)) {
       return;
     }
-    sig = par.w * occ;
+    sig = par[PAR_DENSITY] * occ;
     col = ls_color(ob, tfi, p);
     return;
   }
@@ -334,7 +354,7 @@ void sample_color(int ob, int kind, float s, vec3 p, out float sig, out vec3 col
     return;
   }
   vec4 c = lut_at(tfi, x);
-  sig = par.w * c.a;
+  sig = par[PAR_DENSITY] * c.a;
   col = c.rgb;
   val = s;
 }
@@ -353,7 +373,7 @@ State state_start()
   st.depth = BG_DEPTH;
   st.vsum = 0.0;
   st.vwt = 0.0;
-  st.tmin = fr(FR_SET + SET_TMIN);
+  st.tmin = setting(SET_TMIN);
   st.hit = false;
   st.hit_t = 0.0;
   st.hit_g = vec3(0.0);
@@ -409,10 +429,10 @@ void surface_hit(inout State st, int ob, float t, vec3 g, vec3 p)
  * irradiance (_cpu_surface.light_at: points fall off as 1 / r^2, the headlight shines along d) */
 bool light_at(int k, vec3 p, vec3 d, out vec3 l, out vec3 e)
 {
-  vec4 a = row_texel(lights, k, 2, 0), b = row_texel(lights, k, 2, 1); /* kind xyz, rgb */
+  vec4 a = row_texel(lights, k, 2, 0), b = row_texel(lights, k, 2, 1); /* LIGHT_KIND, _VEC; _RGB */
   l = -d;
   e = b.xyz;
-  if (a.x == 1.0) {
+  if (a.x == float(LIGHT_POINT)) {
     vec3 dl = a.yzw - p;
     float d2 = dot(dl, dl);
     if (!(d2 > 0.0)) {
@@ -421,7 +441,7 @@ bool light_at(int k, vec3 p, vec3 d, out vec3 l, out vec3 e)
     l = dl / sqrt(d2);
     e /= d2;
   }
-  else if (a.x == 0.0) {
+  else if (a.x == float(LIGHT_SUN)) {
     l = -a.yzw;
   }
   return true;
@@ -431,10 +451,10 @@ bool light_at(int k, vec3 p, vec3 d, out vec3 l, out vec3 e)
  * clamped (_cpu_lit.shadow_tau) */
 float shadow_tau(int ob, int li, vec3 x)
 {
-  vec4 g0 = obj_texel(ob, 10), g1 = obj_texel(ob, 11);
-  ivec3 nd = ivec3(g1.xyz);
-  int off = int(g1.w);
-  vec3 u = clamp((x - g0.xyz) / g0.w, vec3(0.0), vec3(nd) - 1.0);
+  int s = OBJ_SH_GRID;
+  ivec3 nd = ivec3(obj_vec3(ob, s + SHG_DIMS));
+  int off = int(obj_at(ob, s + SHG_OFFSET));
+  vec3 u = clamp((x - obj_vec3(ob, s + SHG_ORIGIN)) / obj_at(ob, s + SHG_SPACING), vec3(0.0), vec3(nd) - 1.0);
   ivec3 i0 = min(ivec3(u), nd - 2);
   vec3 a = u - vec3(i0);
   float v = 0.0;
@@ -456,14 +476,14 @@ float shadow_tau(int ob, int li, vec3 x)
 vec3 shade_sample(int ob, vec3 c, vec3 g, vec3 x, Ray r, float t)
 {
   vec4 par = g_par[ob];
-  float rng = par.y - par.x;
+  float rng = par[PAR_VMAX] - par[PAR_VMIN];
   if (!(rng > 0.0)) {
     rng = 1.0;
   }
-  if (!(length(g) > fr(FR_SET + SET_LIT_THRESHOLD) * rng)) {
+  if (!(length(g) > setting(SET_LIT_THRESHOLD) * rng)) {
     return c;
   }
-  vec4 m0 = obj_texel(ob, 0), m1 = obj_texel(ob, 1), m2 = obj_texel(ob, 2);
+  vec4 m0 = w2i_row(ob, 0), m1 = w2i_row(ob, 1), m2 = w2i_row(ob, 2);
   vec3 n = -(g.x * m0.xyz + g.y * m1.xyz + g.z * m2.xyz);
   float nn = length(n);
   if (!(nn > 0.0)) {
@@ -471,8 +491,8 @@ vec3 shade_sample(int ob, vec3 c, vec3 g, vec3 x, Ray r, float t)
   }
   n /= nn;
   vec3 p = r.o + t * r.d;
-  float ka = fr(FR_SET + SET_SHADING), kd = fr(FR_SET + SET_SHADING + 1);
-  float ks = fr(FR_SET + SET_SHADING + 2), sh = fr(FR_SET + SET_SHADING + 3);
+  float ka = setting(SET_SHADING), kd = setting(SET_SHADING + 1);
+  float ks = setting(SET_SHADING + 2), sh = setting(SET_SHADING + 3);
   vec3 col = ka * c;
   for (int k = 0; k < n_lights; k++) {
     vec3 l, e;
@@ -483,7 +503,7 @@ vec3 shade_sample(int ob, vec3 c, vec3 g, vec3 x, Ray r, float t)
     if (ndl <= 0.0) {
       continue;
     }
-    if (g_lit[ob] == 2) {
+    if (g_lit[ob] == SHADING_LIT_SHADOWS) {
       e *= exp(-shadow_tau(ob, k, x));
     }
     vec3 hv = l - r.d;
@@ -500,7 +520,7 @@ vec3 shade_sample(int ob, vec3 c, vec3 g, vec3 x, Ray r, float t)
 /* Blinn-Phong at the hit (_cpu_surface.shade_hit) */
 void shade_hit(inout State st, Ray r)
 {
-  vec4 m0 = obj_texel(st.hit_ob, 0), m1 = obj_texel(st.hit_ob, 1), m2 = obj_texel(st.hit_ob, 2);
+  vec4 m0 = w2i_row(st.hit_ob, 0), m1 = w2i_row(st.hit_ob, 1), m2 = w2i_row(st.hit_ob, 2);
   vec3 g = st.hit_g;
   vec3 n = g.x * m0.xyz + g.y * m1.xyz + g.z * m2.xyz;
   float nn = length(n);
@@ -509,8 +529,8 @@ void shade_hit(inout State st, Ray r)
     n = -n;
   }
   vec3 p = r.o + st.hit_t * r.d;
-  float ka = fr(FR_SET + SET_SHADING), kd = fr(FR_SET + SET_SHADING + 1);
-  float ks = fr(FR_SET + SET_SHADING + 2), sh = fr(FR_SET + SET_SHADING + 3);
+  float ka = setting(SET_SHADING), kd = setting(SET_SHADING + 1);
+  float ks = setting(SET_SHADING + 2), sh = setting(SET_SHADING + 3);
   vec3 c = ka * st.hit_c;
   for (int k = 0; k < n_lights; k++) {
     vec3 l, e;
@@ -552,8 +572,7 @@ void write_output(ivec2 p, Ray r, State st)
   if (st.hit) {
     shade_hit(st, r);
   }
-  vec4 bg = vec4(fr(FR_SET + SET_BG), fr(FR_SET + SET_BG + 1), fr(FR_SET + SET_BG + 2),
-                 fr(FR_SET + SET_BG + 3));
+  vec4 bg = vec4(setting(SET_BG), setting(SET_BG + 1), setting(SET_BG + 2), setting(SET_BG + 3));
   float T = st.tr;
   imageStore(out_rgba, p, vec4(st.rad + T * bg.rgb * bg.a, (1.0 - T) + T * bg.a));
   imageStore(out_dv, p, vec4(st.depth, st.vwt > 0.0 ? st.vsum / st.vwt : 0.0, 0.0, 0.0));

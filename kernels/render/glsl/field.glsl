@@ -2,16 +2,12 @@
  * its screen tile's Gaussians in list order and samples the summed field at the midpoints
  * t_i = (i + 1/2) h (h: the finest object step along the ray) once every chord entering before
  * t_i is known. Each active chord's value is evaluated at the sample (the CPU carries it by two
- * multiplications; the same value). Surfaces (object kind 2): the first crossing between samples
+ * multiplications; the same value). Surfaces (KIND_SURFACE): the first crossing between samples
  * (field_crossing: with signed distances, the zero of their normalised mixture; else the 0.5
  * occupancy); the normal from the Gaussians around the hit
  * (mixture_normal). Entries wait in PCAP slots, active chords in PCAP more; a ray that needs
  * more gets OVERFLOW_DEPTH and the device draws its tile on the CPU. With LIT (lit volumes in the
  * frame), each lit sample is shaded on the mixture's analytic gradient (lit_enter, lit_sample). */
-#define NORMAL_BLUR 1.0
-#define NORMAL_REACH 4.0
-#define SDF_OCCUPANCY 0.25
-#define SURFACE_LEVEL 0.13397460  /* levelset.SURFACE_LEVEL: 1 - sqrt(3) / 2 */
 
 float f_e[PCAP], f_ts[PCAP], f_hq[PCAP], f_ha[PCAP];  /* waiting entries, by slot */
 float a_e[PCAP], a_ts[PCAP], a_hq[PCAP], a_ha[PCAP], a_w[PCAP], a_c[PCAP];  /* active chords */
@@ -44,7 +40,7 @@ void lit_move(int k, int j)
 /* sample colour c of object ob at ti, Blinn-Phong on f_grad where the object is lit */
 vec3 lit_sample(int ob, vec3 c, float ti)
 {
-  return g_lit[ob] == 0 ? c : shade_sample(ob, c, f_grad[ob], g_ro[ob] + ti * g_rd[ob], lit_ray, ti);
+  return g_lit[ob] == SHADING_EMISSION ? c : shade_sample(ob, c, f_grad[ob], g_ro[ob] + ti * g_rd[ob], lit_ray, ti);
 }
 #endif
 
@@ -59,7 +55,7 @@ void mixture_hit(inout State st, int ob, float th, float ti, float sig, vec3 col
 }
 
 /* a signed-distance surface's single-layer level (gpu_layout.object_rows), 0 for none */
-float obj_level(int ob) { return obj_texel(ob, 9).w; }
+float obj_level(int ob) { return obj_at(ob, OBJ_LEVEL); }
 
 /* object ob's surface between samples isamp - 1 and isamp at ti, or INF (_cpu_surface.field_crossing:
  * level > 0, where S = nv / sv falls through 0 while sv >= SDF_OCCUPANCY, or the occupancy-weighted
@@ -184,11 +180,11 @@ bool sweep_field(inout State st, float horizon)
     vec3 col = vec3(0.0);
     int best = -1;
     for (int ob = 0; ob < n_obj; ob++) {
-      int kind = int(obj_texel(ob, 3).x);
-      if (!sact[ob] && kind != 2) { /* surfaces at every sample: a passage may end here */
+      int kind = g_kind[ob];
+      if (!sact[ob] && kind != KIND_SURFACE) { /* surfaces at every sample: a passage may end here */
         continue;
       }
-      if (kind == 2) {
+      if (kind == KIND_SURFACE) {
         float th = field_crossing(ob, ti, sv[ob], nv[ob], obj_level(ob));
         if (th < bt) {
           bt = th;
@@ -243,13 +239,12 @@ void mixture_normal(inout State st)
   mat3 s2 = mat3(0.0);
   int ob = st.hit_ob;
   vec3 x = g_ro[ob] + st.hit_t * g_rd[ob];
-  ivec3 lo = ivec3(floor((x + 0.5 - NORMAL_REACH) / LEAF));
-  ivec3 hi = ivec3(floor((x + 0.5 + NORMAL_REACH) / LEAF));
+  ivec3 lo = ivec3(floor((x + 0.5 - NORMAL_REACH) / float(LEAF)));
+  ivec3 hi = ivec3(floor((x + 0.5 + NORMAL_REACH) / float(LEAF)));
   Walk w;
-  vec4 a = obj_texel(ob, 7), b = obj_texel(ob, 8);
-  w.nmin = ivec3(a.xyz);
-  w.noff = int(a.w);
-  w.ndims = ivec3(b.xyz);
+  w.nmin = ivec3(obj_vec3(ob, OBJ_NODE_MIN));
+  w.noff = int(obj_at(ob, OBJ_NODE_OFF));
+  w.ndims = ivec3(obj_vec3(ob, OBJ_NODE_DIMS));
   vec3 grad = vec3(0.0);
   for (int cx = lo.x; cx <= hi.x; cx++) {
     for (int cy = lo.y; cy <= hi.y; cy++) {
@@ -267,7 +262,7 @@ void mixture_normal(inout State st)
         for (int j = iscalar(c_start, cid); j < j1; j++) {
           int g = iscalar(c_items, j);
           Gauss G = gauss_at(g);
-          if (ivec3(floor((G.mu + 0.5) / LEAF)) != c || G.w == 0.0) {
+          if (ivec3(floor((G.mu + 0.5) / float(LEAF))) != c || G.w == 0.0) {
             continue; /* counted in the cell of its centre */
           }
           vec3 iv = G.iv;
@@ -315,7 +310,7 @@ void mixture_normal(inout State st)
 
 bool trace_tiles(float tn, float tf, inout State st)
 {
-  float k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
+  float k2 = setting(SET_K) * setting(SET_K);
   ivec3 tb = pixel_tile();
   int t1 = tile_first(tb.x + 1);
   slots_start();
@@ -325,7 +320,7 @@ bool trace_tiles(float tn, float tf, inout State st)
   f_over = false;
   hstep = INF;
   for (int ob = 0; ob < n_obj; ob++) {
-    hstep = min(hstep, obj_texel(ob, 3).z / length(g_rd[ob]));
+    hstep = min(hstep, obj_at(ob, OBJ_STEP) / length(g_rd[ob]));
     sprev_i[ob] = -1000000000;
     sprev_v[ob] = 0.0;
   }

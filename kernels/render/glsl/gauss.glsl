@@ -1,28 +1,27 @@
 /* The Gaussian modes' shared pieces (particles, field, paper): the per-Gaussian tables, the
  * screen-tile lists (gpu_layout_gauss), erf, and the exact ray/support test (_cpu_chords.chord).
  * Float32 throughout; the CPU device's float64 image is matched within 50 dB, not bit for bit. */
-#define TILE 8
-#define SET_TAU_MAX 1
-#define SET_K 2
-#define SQRT_HALF 0.70710678
-#define SQRT_HALF_PI 1.25331414
-#define TWO_OVER_SQRT_PI 1.12837917
 
-/* Gaussian g (gpu_layout_gauss.gauss_tables, two texels): centre, column 3 (entry bound, or
- * paper's w x volfac), 1/sigma (18-bit floats: size_words), weight w, value (0 when none),
- * whether it has a value, object */
+/* Gaussian g (gpu_layout_gauss.gauss_tables, GREC_SIZE floats): centre, entry bound (or paper's
+ * w x volfac), 1/sigma (18-bit floats: size_words), weight w, value (0 when none), whether it
+ * has a value, object */
 struct Gauss { vec3 mu; float bound; vec3 iv; float w, val; bool has_val; int ob; };
+/* float e (< 8) of a record held in the two texels a, b */
+float in2(vec4 a, vec4 b, int e)
+{
+  return e < 4 ? a[e & 3] : b[e & 3];
+}
 Gauss gauss_at(int g)
 {
-  vec4 a = texel(g_rec, 2 * g), b = texel(g_rec, 2 * g + 1);
-  uint x = floatBitsToUint(b.x), y = floatBitsToUint(b.y);
+  vec4 a = texel(g_rec, 2 * g), b = texel(g_rec, 2 * g + 1);  /* GREC_SIZE == 8 */
+  uint x = floatBitsToUint(in2(a, b, GREC_WORDS)), y = floatBitsToUint(in2(a, b, GREC_WORDS + 1));
   uvec3 code = (uvec3(x >> 16, x & 0xffffu, y >> 16) << 3) | (uvec3(y, y >> 3, y >> 6) & 7u);
   Gauss G;
-  G.mu = a.xyz;
-  G.bound = a.w;
-  G.iv = uintBitsToFloat((code + (112u << 13)) << 10);  /* EXP_REBIAS, MANT_DROP */
-  G.w = b.z;
-  G.val = b.w;
+  G.mu = vec3(in2(a, b, GREC_MU), in2(a, b, GREC_MU + 1), in2(a, b, GREC_MU + 2));
+  G.bound = in2(a, b, GREC_BOUND);
+  G.iv = uintBitsToFloat((code + (uint(EXP_REBIAS) << 13)) << MANT_DROP);
+  G.w = in2(a, b, GREC_W);
+  G.val = in2(a, b, GREC_VAL);
   G.has_val = ((y >> 13) & 1u) != 0u;
   G.ob = int((y >> 9) & 15u);
   return G;
@@ -32,7 +31,7 @@ Gauss gauss_at(int g)
 vec3 g_color(Gauss G, int g)
 {
   int ob = n_obj == 1 ? 0 : G.ob;
-  if (g_kind[ob] != 0) {
+  if (g_kind[ob] != KIND_FOG) {
     return ls_color(ob, g_tfi[ob], G.mu);
   }
 #ifdef COLOR_VALUES
@@ -55,10 +54,10 @@ float entry_bound(Gauss G, int g) { return G.bound; }
 int tile_first(int tl) { return int(scalar(t_start, tl)); }
 /* entry q of the tile lists: its Gaussian, or -1 when pixel bit `bit` is not in its mask */
 int tile_entry(int q, int bit) {
-  vec4 e = texel(t_ent, q);
-  int piece = bit / 22;
-  int m = int(piece == 0 ? e.y : (piece == 1 ? e.z : e.w));
-  return ((m >> (bit - 22 * piece)) & 1) != 0 ? int(e.x) : -1;
+  vec4 e = texel(t_ent, q);  /* TENT_SIZE == 4 */
+  int piece = bit / MASK_BITS;
+  int m = int(piece == 0 ? e[TENT_MASK] : (piece == 1 ? e[TENT_MASK + 1] : e[TENT_MASK + 2]));
+  return ((m >> (bit - MASK_BITS * piece)) & 1) != 0 ? int(e[TENT_ID]) : -1;
 }
 
 /* erfc with fractional error < 1.2e-7 everywhere (Numerical Recipes' Chebyshev fit) */
@@ -181,6 +180,6 @@ void queue_insert(float t, int g, int h)
 ivec3 pixel_tile()
 {
   ivec2 p = ivec2(gl_GlobalInvocationID.xy) + ivec2(col0, row0);
-  int ntx = (int(fr(FR_CAM + 1)) + TILE - 1) / TILE;
+  int ntx = (int(cam(CAM_W)) + TILE - 1) / TILE;
   return ivec3((p.y / TILE) * ntx + p.x / TILE, (p.y % TILE) * TILE + p.x % TILE, 0);
 }

@@ -5,8 +5,6 @@
  * this mode with its weights); a chord counts where the CPU's leaf walk would meet it: entering
  * inside [max(tn, clip start), min(tf, clip end)) of its object. One scan of the tile keeps the
  * KB earliest entries at or after the origin; the next scan starts where they ran out. */
-#define SET_PAPER_STEPS 7
-#define SET_PAPER_DEPTH 8
 #ifndef KB
 #define KB 16
 #endif
@@ -60,9 +58,9 @@ int next_entry(inout int q, int q1, int bit, float k2, Ray r, float pcur, int nb
 
 void trace_mode(Ray r, inout State st)
 {
-  float k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
-  int nsteps = int(fr(FR_SET + SET_PAPER_STEPS));
-  float maxd = fr(FR_SET + SET_PAPER_DEPTH);
+  float k2 = setting(SET_K) * setting(SET_K);
+  int nsteps = int(setting(SET_PAPER_STEPS));
+  float maxd = setting(SET_PAPER_DEPTH);
   ivec3 tb = pixel_tile();
   int q0 = tile_first(tb.x), q1 = tile_first(tb.x + 1);
   float pcur = -INF, depth_n = 0.0;

@@ -22,7 +22,7 @@ vec3 cb_lo, cb_hi;  /* the open members' colour bounds */
 vec3 lit_chord(Gauss G, int g, float ts, float qq, vec3 col)
 {
   int ob = n_obj == 1 ? 0 : G.ob;
-  if (g_lit[ob] == 0) {
+  if (g_lit[ob] == SHADING_EMISSION) {
     return col;
   }
   vec4 n = texel(g_grad, g);
@@ -155,7 +155,7 @@ bool sweep_particles(inout State st, float horizon, float tau_max) {
 }
 
 bool trace_tiles(float tn, float tf, inout State st) {
-  float tau_max = fr(FR_SET + SET_TAU_MAX), k2 = fr(FR_SET + SET_K) * fr(FR_SET + SET_K);
+  float tau_max = setting(SET_TAU_MAX), k2 = setting(SET_K) * setting(SET_K);
   ivec3 tb = pixel_tile();
   int tl = tb.x, bit = tb.y;
   int t1 = tile_first(tl + 1);

@@ -7,7 +7,7 @@
 
 ivec3 brick_base(int cid)
 {
-  return ivec3(cid % atlas_sx, (cid / atlas_sx) % atlas_sy, cid / (atlas_sx * atlas_sy)) * 10;
+  return ivec3(cid % atlas_sx, (cid / atlas_sx) % atlas_sy, cid / (atlas_sx * atlas_sy)) * BRICK;
 }
 
 float vox(ivec3 base, int i, int j, int k)
@@ -19,7 +19,7 @@ float vox(ivec3 base, int i, int j, int k)
 vec3 brick_xyz(int cid, vec3 x)
 {
   vec3 c = texel(cells, cid).xyz;
-  return clamp(x - (c * 8.0 - 1.0), 0.0, 8.999999);
+  return clamp(x - (c * float(LEAF) - 1.0), 0.0, BRICK_HI);
 }
 
 float trilinear(ivec3 base, vec3 f)
@@ -101,9 +101,9 @@ void piece_start(float p0, float p1, int ncov, out int n, out float h)
   float dt = INF;
   for (int c = 0; c < ncov; c++) {
     int ob = cov_obj[c];
-    dt = min(dt, obj_texel(ob, 3).z / length(g_rd[ob]));
+    dt = min(dt, obj_at(ob, OBJ_STEP) / length(g_rd[ob]));
     cov_base[c] = brick_base(cov_cell[c]);
-    cov_org[c] = texel(cells, cov_cell[c]).xyz * 8.0 - 1.0;
+    cov_org[c] = texel(cells, cov_cell[c]).xyz * float(LEAF) - 1.0;
   }
   n = max(1, int(ceil((p1 - p0) / dt)));
   h = (p1 - p0) / float(n);
@@ -119,9 +119,9 @@ bool reference_sample(inout State st, Ray r, float t, float p0, float h, int nco
   for (int c = 0; c < ncov; c++) {
     int ob = cov_obj[c], cid = cov_cell[c];
     vec3 x = g_ro[ob] + t * g_rd[ob];
-    float val = trilinear(cov_base[c], clamp(x - cov_org[c], 0.0, 8.999999));
+    float val = trilinear(cov_base[c], clamp(x - cov_org[c], 0.0, BRICK_HI));
     int kind = g_kind[ob];
-    if (kind == 2) {
+    if (kind == KIND_SURFACE) {
       float th = sdf_crossing(ob, val, t, p0, h, cid);
       if (th < bt) {
         bt = th;
@@ -129,19 +129,19 @@ bool reference_sample(inout State st, Ray r, float t, float p0, float h, int nco
       }
       continue;
     }
-    if (kind == 1) { /* SDF (world units) -> occupancy with a one-voxel ramp */
-      val = 0.5 - val / obj_texel(ob, 5).w;
+    if (kind == KIND_SHELL) { /* SDF (world units) -> occupancy with a one-voxel ramp */
+      val = 0.5 - val / ls_at(ob, LS_VOXEL);
     }
     float s, v;
     vec3 cc;
     sample_color(ob, kind, val, x, s, cc, v);
 #ifdef COLOR_GRID
     if (s > 0.0 && color_tf(ob) >= 0) { /* the colour grid's brick of this cell */
-      cc = color_map(color_tf(ob), trilinear(brick_base(cid + cbrick0), clamp(x - cov_org[c], 0.0, 8.999999)));
+      cc = color_map(color_tf(ob), trilinear(brick_base(cid + cbrick0), clamp(x - cov_org[c], 0.0, BRICK_HI)));
     }
 #endif
-    if (g_lit[ob] != 0 && s > 0.0) {
-      cc = shade_sample(ob, cc, trilinear_grad(cov_base[c], clamp(x - cov_org[c], 0.0, 8.999999)), x, r, t);
+    if (g_lit[ob] != SHADING_EMISSION && s > 0.0) {
+      cc = shade_sample(ob, cc, trilinear_grad(cov_base[c], clamp(x - cov_org[c], 0.0, BRICK_HI)), x, r, t);
     }
     if (s > 0.0) {
       sig += s;

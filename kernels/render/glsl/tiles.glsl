@@ -7,8 +7,7 @@
  * SORT (per entry): its place in its tile by (entry bound, id), from its rank there.
  * Float32 rounding: the rectangle is widened by MARGIN_PX and the bound lowered a little more
  * than the CPU's, so every Gaussian the CPU lists in a tile is listed here too. */
-#define TILE 8
-#define MARGIN_PX 0.02
+#define MARGIN_PX 0.02  /* (the GPU's own: wider than _cpu_tiles.MARGIN_PX) */
 #define INF (1.0 / 0.0)
 
 vec4 texel(sampler2D t, int e) { return texelFetch(t, ivec2(e % ROW_TEXELS, e / ROW_TEXELS), 0); }
@@ -18,6 +17,11 @@ float scalar(sampler2D t, int e)
   vec4 v = texel(t, e >> 2);
   int c = e & 3;
   return c == 0 ? v.x : (c == 1 ? v.y : (c == 2 ? v.z : v.w));
+}
+/* float e (< 8) of a record held in the two texels a, b */
+float in2(vec4 a, vec4 b, int e)
+{
+  return e < 4 ? a[e & 3] : b[e & 3];
 }
 int invocation() { return int(gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x); }
 
@@ -62,17 +66,19 @@ void main()
   if (g >= n_g) return;
   ivec4 box = ivec4(1, 0, 1, 0);
   float lb = INF;
-  vec4 ga = texel(tl_g, 2 * g), gb = texel(tl_g, 2 * g + 1);
-  vec4 c0 = texel(tl_par, 0), c1 = texel(tl_par, 1);
-  int W = int(c0.x), H = int(c0.y);
-  float ex = c0.z, ey = c0.w, offx = c1.x, offy = c1.y, k = c1.w;
-  bool ortho = c1.z > 0.5;
-  if (gb.z != 0.0) {
-    int o = 2 + 4 * int(gb.w);
-    vec4 B0 = texel(tl_par, o), B1 = texel(tl_par, o + 1), B2 = texel(tl_par, o + 2);
-    float onorm = texel(tl_par, o + 3).x;
+  vec4 ga = texel(tl_g, 2 * g), gb = texel(tl_g, 2 * g + 1);  /* TLG_SIZE == 8 */
+  int W = int(scalar(tl_par, TLP_W)), H = int(scalar(tl_par, TLP_H));
+  float ex = scalar(tl_par, TLP_EX), ey = scalar(tl_par, TLP_EY);
+  float offx = scalar(tl_par, TLP_OX), offy = scalar(tl_par, TLP_OY), k = scalar(tl_par, TLP_K);
+  bool ortho = scalar(tl_par, TLP_ORTHO) > 0.5;
+  if (in2(ga, gb, TLG_W) != 0.0) {
+    int o = TLP_SIZE + TLO_SIZE * int(in2(ga, gb, TLG_OBJ));  /* the object's TLO */
+    vec4 B0 = texel(tl_par, (o + TLO_CMAT) >> 2), B1 = texel(tl_par, ((o + TLO_CMAT) >> 2) + 1);
+    vec4 B2 = texel(tl_par, ((o + TLO_CMAT) >> 2) + 2);
+    float onorm = scalar(tl_par, o + TLO_NORM);
     /* cmat rows (3 x 4, row-major): B0 = row 0 [0..3], B1 = row 1 [0..3], B2 = row 2 [0..3] */
-    vec3 m = ga.xyz, iv = vec3(ga.w, gb.x, gb.y);
+    vec3 m = vec3(in2(ga, gb, TLG_MU), in2(ga, gb, TLG_MU + 1), in2(ga, gb, TLG_MU + 2));
+    vec3 iv = vec3(in2(ga, gb, TLG_INV), in2(ga, gb, TLG_INV + 1), in2(ga, gb, TLG_INV + 2));
     float cx = dot(B0.xyz, m) + B0.w, cy = dot(B1.xyz, m) + B1.w, cz = dot(B2.xyz, m) + B2.w;
     vec3 s = k / iv;
     s = s * s;
@@ -133,8 +139,11 @@ void main()
       for (int y = j0; y <= j1; y++) {
         if (y < 4) lo |= row << uint(TILE * y); else hi |= row << uint(TILE * (y - 4));
       }
-      uint p0 = lo & 0x3FFFFFu, p1 = (lo >> 22u) | ((hi & 0xFFFu) << 10u), p2 = hi >> 12u;
-      imageStore(t_raw, at(q), vec4(float(g), float(p0), float(p1), float(p2)));
+      /* the 64-bit mask (lo, hi words) in pieces of MASK_BITS (22, 22, 20), as TENT holds them */
+      const uint hb = uint(2 * MASK_BITS - 32);  /* the second piece's bits in hi */
+      uint p0 = lo & ((1u << uint(MASK_BITS)) - 1u);
+      uint p1 = (lo >> uint(MASK_BITS)) | ((hi & ((1u << hb) - 1u)) << (32u - uint(MASK_BITS))), p2 = hi >> hb;
+      imageStore(t_raw, at(q), vec4(float(g), float(p0), float(p1), float(p2)));  /* TENT_ID, TENT_MASK.. */
       imageStore(t_tile, at(q), vec4(float(ty * ntx + tx), 0.0, 0.0, 0.0));
     }
   }
