@@ -21,8 +21,6 @@ from ._cpu_math import INF, _hot, _jit, composite, erf_diff, erf_span, line_inte
 from ._cpu_pieces import lut_rows, paper_piece, reference_piece  # noqa: F401  (lut_rows: for device.py)
 from ._cpu_surface import mixture_normal, shade_hit
 from ._cpu_walk import clip_interval, walk_object
-from .packing import Hits, Scratch
-from .scene import Mode
 from .layout import (
     BG_DEPTH,
     CAM_CLIP,
@@ -62,6 +60,8 @@ from .layout import (
     Kind,
     Shading,
 )
+from .packing import Hits, Scratch
+from .scene import Mode
 
 # the device calls render_rows; the tests reach the float64 helpers through this module too
 __all__ = ["render_rows", "composite", "erf_diff", "erf_span", "line_integral"]
@@ -108,8 +108,9 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     """paper / reference: piece by piece over the covering leaves."""
     one = accel.walk_obj.shape[0] == 1  # one object's leaves: the intervals are the pieces
     tf = objs.tf[0]
+    # one fog volume, Emission, linear transfer function
     if (one and mode == Mode.REFERENCE and objs.kind[0] == Kind.FOG and objs.ctf[0] < 0
-            and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):  # one fog volume, Emission, linear transfer function
+            and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):
         reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
                       accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear, scr.fog)
         return

@@ -10,16 +10,13 @@ import numpy as np
 
 from ..jit import njit
 from ._cpu_math import INF, _hot, composite, erf_fast, erf_span
-from .scene import Mode
 from .layout import (
     BG_DEPTH,
-    C,
     CB,
     CEND,
     CG,
     CR,
     DEPTH,
-    E,
     FA,
     FB,
     HA,
@@ -36,7 +33,6 @@ from .layout import (
     REC_MU,
     REC_W,
     RHO,
-    S,
     SA,
     SEGS,
     SQRT_HALF,
@@ -46,7 +42,11 @@ from .layout import (
     TS,
     VAL,
     VW,
+    C,
+    E,
+    S,
 )
+from .scene import Mode
 
 # the hit record's columns (S .. CV, NF) and the sweep state's (NQ .. QH, IA .. CEND): layout
 OVERFLOW = -1

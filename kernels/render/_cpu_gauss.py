@@ -48,14 +48,12 @@ from ._cpu_chords import (
 from ._cpu_lit import lit_member, shade_sample
 from ._cpu_math import INF, _hot, add_sample, composite_sample, erf_fast, recolor, sample_color
 from ._cpu_surface import field_crossing, mixture_hit
-from .scene import Mode
 from .layout import (
     CB,
     CEND,
     CG,
     CR,
     CV,
-    E,
     EX,
     FA,
     GA,
@@ -72,26 +70,28 @@ from .layout import (
     NQ,
     PK,
     QH,
-    R,
     RC,
     REC_INV,
     REC_LB,
     REC_MU,
     REC_W,
     RHO,
-    S,
     SA,
     SEGS,
     TILE,
     TMIN,
     TR,
     TS,
-    V,
     VAL,
     VW,
+    E,
     Kind,
+    R,
+    S,
     Shading,
+    V,
 )
+from .scene import Mode
 
 
 @njit(**_hot)

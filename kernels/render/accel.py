@@ -21,6 +21,7 @@ from ..jit import njit
 from .bricks import leaf_bricks, sub_max
 from .gauss_pack import drawn, spheres
 from .layout import BRICK, LEAF, NODE_LEAVES
+
 MAX_NODE_TABLE = 1 << 26  # dense node table entries per object (sparse-enough for any VDB we read)
 # Peak bytes per halo-list entry (Gaussian x cell) while add_halo_lists builds them, a cell per
 # entry at worst (measured with tracemalloc: ids, cell coordinates, sort keys and order, the face

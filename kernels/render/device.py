@@ -23,8 +23,8 @@ import numpy as np
 
 from ..cachedir import set_cache_root
 from . import packing
-from .layout import BG_DEPTH, LS_COLOR, LS_CONST, LS_PLANE, LS_RANGE, REC_LB, Kind, Shading
 from .accel import add_halo_lists, build_gaussians, build_voxel_accel, gaussian_bounds, tile_budget
+from .layout import BG_DEPTH, LS_COLOR, LS_CONST, LS_PLANE, LS_RANGE, REC_LB, Kind, Shading
 from .scene import Mode, RenderScene, same_geometry
 from .splat_scene import SplatGrids
 from .transfer import TransferFunction, range_alpha, resampled

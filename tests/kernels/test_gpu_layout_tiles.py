@@ -2,10 +2,9 @@
 as tiles.glsl reads them, the prefix sum, and the CPU's lists as the fallback tables."""
 import numpy as np
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, layout
 from kernels.render import gpu_layout_gauss as LG
 from kernels.render import gpu_layout_tiles as L
-from kernels.render import layout
 from kernels.render._cpu_tiles import tile_camera
 from kernels.render.synthetic import gaussian_set
 

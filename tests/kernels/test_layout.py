@@ -7,9 +7,20 @@ import re
 
 import numpy as np
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, layout, lights
-from kernels.render import gpu_layout, gpu_layout_color, gpu_layout_gauss, gpu_layout_tiles
-from kernels.render import gauss_pack
+from kernels.render import (
+    Camera,
+    CPUDevice,
+    RenderObject,
+    RenderScene,
+    TransferFunction,
+    gauss_pack,
+    gpu_layout,
+    gpu_layout_color,
+    gpu_layout_gauss,
+    gpu_layout_tiles,
+    layout,
+    lights,
+)
 from kernels.render.packing import Scratch, pack_settings
 from kernels.render.synthetic import gaussian_set
 
