@@ -109,8 +109,9 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     """paper / reference: piece by piece over the covering leaves."""
     one = accel.walk_obj.shape[0] == 1  # one object's leaves: the intervals are the pieces
     tf = objs.tf[0]
+    # one fog volume, Emission, a linear transfer function: the one-fog sampler
     if (one and mode == Mode.REFERENCE and objs.kind[0] == Kind.FOG and objs.ctf[0] < 0
-            and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):  # one fog volume, Emission, linear transfer function
+            and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):
         reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
                       accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear, scr.fog)
         return

@@ -326,7 +326,8 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
                 nid = node_table[noff[ob] + ((nx - nm[0]) * nd[1] + (ny - nm[1])) * nd[2] + (nz - nm[2])]
                 if nid < 0:
                     continue
-                cid = node_cells[nid, ((cx - nx * NODE_LEAVES) * NODE_LEAVES + (cy - ny * NODE_LEAVES)) * NODE_LEAVES + (cz - nz * NODE_LEAVES)]
+                cid = node_cells[nid, ((cx - nx * NODE_LEAVES) * NODE_LEAVES + (cy - ny * NODE_LEAVES)) * NODE_LEAVES
+                                 + (cz - nz * NODE_LEAVES)]
                 if cid < 0:
                     continue
                 for j in range(cell_start[cid], cell_start[cid + 1]):
@@ -340,7 +341,8 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
                         continue
                     if sdf:  # the fit's sums, about the hit
                         ux, uy, uz = g_rec[g, REC_MU] - x, g_rec[g, REC_MU + 1] - y, g_rec[g, REC_MU + 2] - z
-                        q = (ux * g_rec[g, REC_INV]) ** 2 + (uy * g_rec[g, REC_INV + 1]) ** 2 + (uz * g_rec[g, REC_INV + 2]) ** 2
+                        q = ((ux * g_rec[g, REC_INV]) ** 2 + (uy * g_rec[g, REC_INV + 1]) ** 2
+                             + (uz * g_rec[g, REC_INV + 2]) ** 2)
                         if q > 16.0:
                             continue
                         e = math.exp(-0.5 * q)
@@ -359,7 +361,8 @@ def mixture_normal(st, ro, rd, nmin, ndims, noff, node_table, node_cells, cell_s
                     q = ux * ux + uy * uy + uz * uz
                     if q > 16.0:
                         continue
-                    e = w * ix * iy * iz / (g_rec[g, REC_INV] * g_rec[g, REC_INV + 1] * g_rec[g, REC_INV + 2]) * math.exp(-0.5 * q)
+                    e = (w * ix * iy * iz / (g_rec[g, REC_INV] * g_rec[g, REC_INV + 1] * g_rec[g, REC_INV + 2])
+                         * math.exp(-0.5 * q))
                     gx += e * ux * ix
                     gy += e * uy * iy
                     gz += e * uz * iz
