@@ -28,6 +28,7 @@ import numpy as np
 from ...kernels.mode_names import Mode
 from ...kernels.render import device as kdevice
 from ...kernels.render import (  # _gauss: the Gaussian modes' tables
+    gpu_case,  # a frame's tables and defines (also saved as a file: benchmarks/gl_backend.py)
     gpu_layout,
     gpu_layout_color,  # the volumes coloured by a second grid
     gpu_layout_gauss,
@@ -118,15 +119,14 @@ class GPUDevice(kdevice.Device):
     def _tables(self, frame):
         """The frame's uploaded tables (geometry reused while the sync is the same)."""
         name, spec = self._spec(frame)
-        geo_fn, frame_fn = gpu_layout.MODE_TABLES[name]
+        geo_fn = gpu_layout.MODE_TABLES[name][0]
         gkey = (self.cpu._sync_count, name, gpu_layout_gauss.lit(frame))
         if self._geom is None or self._geom[0] != gkey:
             self._geom = None
             t = geo_fn(frame)
             self._geom = (gkey, t, compute.upload(t.textures))
         if self._up is None or self._up[0] != frame.key:
-            t = frame_fn(frame)
-            t.textures.update(gpu_layout_color.frame_tables(frame))
+            t = gpu_case.frame_tables(frame, name)
             tex = compute.upload(t.textures)
             if gpu_layout_gauss.on_gpu(frame):
                 tex.update(self._tile_lists(frame))
@@ -158,10 +158,7 @@ class GPUDevice(kdevice.Device):
         import gpu
 
         name, spec, arrays, tex, ints = self._tables(frame)
-        extra = (("GPU_TILES",) if gpu_layout_gauss.on_gpu(frame) else ()) + (
-            ("LIT",) if gpu_layout_gauss.lit(frame) else ())
-        spec = spec._replace(defines=spec.defines + extra)
-        spec = spec._replace(defines=spec.defines + gpu_layout_color.defines(arrays))
+        spec = spec._replace(defines=spec.defines + gpu_case.frame_defines(frame, arrays))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
