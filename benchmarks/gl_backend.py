@@ -137,7 +137,8 @@ def read(tex):
 
 
 def nbytes(tex):
-    return sum(t.width * t.height * getattr(t, "depth", 1) * t.components * 4 for t in tex.values())
+    """Texture bytes (float32 or uint32 components; a 3-D texture's size has three sides)."""
+    return sum(int(np.prod(t.size)) * t.components * 4 for t in tex.values())
 
 
 class Frame:

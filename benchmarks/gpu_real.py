@@ -8,13 +8,14 @@ as the GPU device draws it.
 Per case and view: the upload of the scene's tables (ms, wall clock to glFinish, median of 3), the
 screen-tile lists' three passes with their counts' readback (ms, wall clock, median of 5; the
 Gaussian modes), the mode's dispatch (ms from GL_TIME_ELAPSED queries, median of 20 after 3
-warm-ups), the scene's bytes on the GPU (tables, atlas and lists; bytes per Gaussian), and the
-image's PSNR against the CPU device's image saved in the case (tiles the device would redraw on the
-CPU taken from it, as the device does). Every fallback to the CPU device is counted: frames the GPU
-device hands to it (saved beside the cases as CASE.fallback.json), tile lists past this GPU's
-textures (the device then uploads the CPU's, which the case does not hold: not timed), tables past
-its texture size, screen tiles redrawn on the CPU. Writes OUT/gpu_real.json and OUT/gpu_real.md;
-cases not started within --budget-s are listed as skipped.
+warm-ups; beside it the wall clock to glFinish), the scene's bytes on the GPU (tables, atlas and
+lists; the per-Gaussian tables' bytes a Gaussian), and the image's PSNR against the CPU device's
+image saved in the case (tiles the device would redraw on the CPU taken from it, as it does).
+Every fallback to the CPU device is counted: frames the GPU device hands to it (saved beside the
+cases as CASE.fallback.json), tile lists past this GPU's textures (the device then uploads the
+CPU's, which the case does not hold: not timed), tables past its texture size, screen tiles
+redrawn on the CPU. Writes OUT/gpu_real.json and OUT/gpu_real.md; cases not started within
+--budget-s are listed as skipped.
 """
 from __future__ import annotations
 
@@ -90,7 +91,15 @@ def measure(gl, path, view, fallbacks):
     for _ in range(WARM):
         f.draw()
     gl.ctx.finish()
-    row["dispatch_ms"] = statistics.median(gl.timed(f.draw) for _ in range(TIMED))
+    gpu_ms, wall = [], []
+    for _ in range(TIMED):
+        t = time.perf_counter()
+        gpu_ms.append(gl.timed(f.draw))
+        gl.ctx.finish()
+        wall.append(1e3 * (time.perf_counter() - t))
+    # (llvmpipe's timer queries read ~0: it runs a dispatch when the CPU waits on it; the wall
+    # clock to glFinish is its time there)
+    row["dispatch_ms"], row["dispatch_wall_ms"] = statistics.median(gpu_ms), statistics.median(wall)
     rgba, dv = f.read()
     over = B.overflow_tiles(case, dv)
     tile = int(case.define("TILE"))
@@ -104,17 +113,18 @@ def measure(gl, path, view, fallbacks):
     fallbacks["overflow_tiles"] += len(over)
     fallbacks["frames_with_overflow"] += bool(over)
     row["gpu_bytes"] = f.gpu_bytes()
-    if "g_rec" in f.tex:
-        row["gauss_bytes_each"] = 16 * f.tex["g_rec"].width * f.tex["g_rec"].height / max(1, info["gaussians"])
+    if "g_rec" in f.tex:  # the per-Gaussian tables' bytes (gpu_layout_gauss.bytes_per_gaussian)
+        per = {"g_rec": 16 * -(-int(case.define("GREC_SIZE")) // 4), "g_cval": 4, "g_grad": 16}
+        row["gauss_bytes_each"] = sum(b for n, b in per.items() if n in f.tex)
     return row
 
 
 def table(rows, renderer, software):
     label = " (software: llvmpipe, not a GPU)" if software else ""
     out = [f"GPU: {renderer}{label}", "",
-           "| file | mode | LOD | size | dispatch ms | lists ms | upload ms | scene MiB | B/Gaussian | PSNR dB "
-           "| CPU tiles | fallback |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| file | mode | LOD | size | dispatch ms | (wall) | lists ms | upload ms | scene MiB | B/Gaussian "
+           "| PSNR dB | CPU tiles | fallback |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def f(v, fmt):
         return "" if v is None else format(v, fmt)
@@ -122,7 +132,8 @@ def table(rows, renderer, software):
     for r in rows:
         mib = r["gpu_bytes"] / 2 ** 20 if "gpu_bytes" in r else None
         out.append(f"| {r.get('source', r['case'])} | {r.get('mode_asked') or r.get('mode')} | {r.get('lod', '')} | "
-                   f"{r.get('view', '')} | {f(r.get('dispatch_ms'), '.2f')} | {f(r.get('lists_ms'), '.1f')} | "
+                   f"{r.get('view', '')} | {f(r.get('dispatch_ms'), '.2f')} | "
+                   f"{f(r.get('dispatch_wall_ms'), '.1f')} | {f(r.get('lists_ms'), '.1f')} | "
                    f"{f(r.get('upload_ms'), '.1f')} | {f(mib, '.1f')} | "
                    f"{f(r.get('gauss_bytes_each'), '.0f')} | {f(r.get('psnr_db'), '.1f')} | "
                    f"{r.get('overflow_tiles', '')} | {r.get('fallback', '')} |")
