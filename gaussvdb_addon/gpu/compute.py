@@ -4,89 +4,61 @@ dispatch per band of rows, the passes read back. Every function here must run in
 context (context.run)."""
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
-from ...kernels.render import gpu_layout, layout
+from ...kernels.render import glsl_assembly as asm
 
-GLSL_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-                        "kernels", "render", "glsl")
-GROUP = 8  # work group: GROUP x GROUP pixels
-CORE_INTS = ("row0", "col0", "nrows", "ncols", "n_obj", "obj_texels", "n_lights")
-_SHADERS = {}  # (mode, resources) -> compiled shader, per process
-
-
-def define_layout(info, max_obj=layout.MAX_OBJ):
-    """The shared records' offsets and constants (layout.glsl_defines) as the shader's defines."""
-    for name, value in layout.glsl_defines(max_obj).items():
-        info.define(name, value)
-
-
-def glsl(name):
-    with open(os.path.join(GLSL_DIR, name), encoding="utf-8") as f:
-        return f.read()
-
-
-def source(glsl_file):
-    """The compute source: common, color (the colour grids' functions), the mode's file (or
-    files, in order), main (the create-info adds the resources)."""
-    files = (glsl_file,) if isinstance(glsl_file, str) else tuple(glsl_file)
-    return "\n".join(glsl(n) for n in ("common.glsl", "color.glsl") + files + ("main.glsl",))
+GLSL_DIR = asm.GLSL_DIR
+GROUP = asm.GROUP  # work group: GROUP x GROUP pixels
+_SHADERS = {}  # Program -> compiled shader, per process
 
 
 def group(spec):
-    """The work group's side for a mode: GROUP, or 1 for modes marked ONE_PER_GROUP on llvmpipe
-    (the pixels it runs together share one loop budget, glsl/common.glsl's loops_cut, and the
-    Gaussian modes' divergent loops spend it at the pace of the slowest pixel)."""
+    """The work group's side for a mode on this renderer (glsl_assembly.group_side)."""
     import gpu
 
-    if "ONE_PER_GROUP" in spec.defines and "llvmpipe" in gpu.platform.renderer_get():
-        return 1
-    return GROUP
+    return asm.group_side(spec.defines, gpu.platform.renderer_get())
 
 
-def _kind(a):
-    return "FLOAT_3D" if a.ndim == 3 and a.dtype == np.float32 and a.shape[-1] != 4 else "FLOAT_2D"
+_kind = asm.texture_kind
 
 
-def object_cap(n):
-    """The per-object arrays' size a shader is compiled for: the power of two >= n objects
-    (small arrays stay in registers; one object's are no arrays at all)."""
-    cap = 1
-    while cap < n:
-        cap *= 2
-    return min(cap, gpu_layout.MAX_OBJ)
+def create_info(program):
+    """A glsl_assembly.Program as Blender's create-info (the standalone backend declares the same
+    Program as GLSL 4.30: glsl_assembly.glsl_430)."""
+    import gpu
+
+    info = gpu.types.GPUShaderCreateInfo()
+    for slot, (name, fmt, kind, qual) in enumerate(program.images):
+        info.image(slot, fmt, kind, name, qualifiers=set(qual))
+    for slot, (name, kind) in enumerate(program.samplers):
+        info.sampler(slot, kind, name)
+    for name in program.ints:
+        info.push_constant("INT", name)
+    for name, value in program.defines:
+        info.define(name, value)
+    info.local_group_size(*program.local_size)
+    info.compute_source(asm.source(program))
+    return info
+
+
+def compiled(program):
+    """The program's shader (compiled once per process)."""
+    import gpu
+
+    sh = _SHADERS.get(program)
+    if sh is None:
+        sh = _SHADERS[program] = gpu.shader.create_from_info(create_info(program))
+    return sh
 
 
 def shader(mode, spec, textures, ints):
-    """The mode's shader for these table names (compiled once per process)."""
+    """The mode's shader for these tables (glsl_assembly.mode_program on this renderer)."""
     import gpu
 
-    names = tuple(sorted(textures))
-    cap = object_cap(ints["n_obj"])
-    key = (mode, cap, tuple((n, _kind(textures[n])) for n in names), tuple(sorted(ints)),
-           tuple(spec.defines))
-    sh = _SHADERS.get(key)
-    if sh is not None:
-        return sh
-    info = gpu.types.GPUShaderCreateInfo()
-    info.image(0, "RGBA32F", "FLOAT_2D", "out_rgba", qualifiers={"WRITE"})
-    info.image(1, "RGBA32F", "FLOAT_2D", "out_dv", qualifiers={"WRITE"})
-    for slot, n in enumerate(names):
-        info.sampler(slot, _kind(textures[n]), n)
-    for n in CORE_INTS + tuple(sorted(set(ints) - set(CORE_INTS))):
-        info.push_constant("INT", n)
-    define_layout(info, cap)
-    info.define(f"MODE_{mode}", "1")
-    for d in spec.defines:
-        info.define(d, "1")
-    side = group(spec)
-    info.local_group_size(side, side)
-    info.compute_source(source(spec.glsl))
-    sh = gpu.shader.create_from_info(info)
-    _SHADERS[key] = sh
-    return sh
+    program = asm.mode_program(mode, spec.glsl, spec.defines,
+                               {n: _kind(a) for n, a in textures.items()}, ints)
+    return compiled(asm.on_renderer(program, gpu.platform.renderer_get()))
 
 
 def upload(textures):

@@ -28,6 +28,7 @@ import numpy as np
 
 from ...kernels.render import (  # _gauss: the Gaussian modes' tables
     bands,
+    gpu_case,  # a frame's tables and defines (also saved as a file: benchmarks/gl_backend.py)
     gpu_layout,
     gpu_layout_color,  # the volumes coloured by a second grid
     gpu_layout_gauss,
@@ -112,15 +113,14 @@ class GPUDevice(Device):
     def _tables(self, frame):
         """The frame's uploaded tables (geometry reused while the sync is the same)."""
         name, spec = self._spec(frame)
-        geo_fn, frame_fn = gpu_layout.MODE_TABLES[name]
+        geo_fn = gpu_layout.MODE_TABLES[name][0]
         gkey = (self.cpu.geometry_version, name, gpu_layout_gauss.lit(frame))
         if self._geom is None or self._geom[0] != gkey:
             self._geom = None
             t = geo_fn(frame)
             self._geom = (gkey, t, compute.upload(t.textures))
         if self._up is None or self._up[0] != frame.key:
-            t = frame_fn(frame)
-            t.textures.update(gpu_layout_color.frame_tables(frame))
+            t = gpu_case.frame_tables(frame, name)
             tex = compute.upload(t.textures)
             if gpu_layout_gauss.on_gpu(frame):
                 tex.update(self._tile_lists(frame))
@@ -152,9 +152,7 @@ class GPUDevice(Device):
         import gpu
 
         name, spec, arrays, tex, ints = self._tables(frame)
-        extra = (("GPU_TILES",) if gpu_layout_gauss.on_gpu(frame) else ()) + (
-            ("LIT",) if gpu_layout_gauss.lit(frame) else ())
-        spec = dataclasses.replace(spec, defines=spec.defines + extra + gpu_layout_color.defines(arrays))
+        spec = dataclasses.replace(spec, defines=spec.defines + gpu_case.frame_defines(frame, arrays))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()

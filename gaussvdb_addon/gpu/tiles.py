@@ -5,24 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...kernels.render import glsl_assembly as asm
 from ...kernels.render import gpu_layout, gpu_layout_tiles
 from . import compute
 
-GROUP = 64  # invocations per work group (one Gaussian or one entry each)
+GROUP = asm.TILES_GROUP  # invocations per work group (one Gaussian or one entry each)
 # gpu.compute.dispatch ends with a texture-fetch and image-access barrier: each pass sees the last
 LISTS = ("t_start", "t_ent", "t_lb")  # what build() returns (RGBA32F tables)
 MAX_ENTRIES = int(gpu_layout.EXACT) - 1  # entries one frame's GPU lists hold (ids are exact floats)
-_SHADERS = {}
-# stage: (samplers, images (name, format, kind, qualifiers), ints)
-ATOMIC = ("R32UI", "UINT_2D_ATOMIC", {"READ", "WRITE"})
-STAGES = {
-    "FOOT": (("tl_g", "tl_par"), (("tl_box", "RGBA32F", "FLOAT_2D", {"WRITE"}),
-                                  ("t_lb", "RGBA32F", "FLOAT_2D", {"WRITE"}), ("cnt",) + ATOMIC), ("n_g",)),
-    "FILL": (("tl_box", "t_start"), (("cnt",) + ATOMIC, ("t_raw", "RGBA32F", "FLOAT_2D", {"WRITE"}),
-                                     ("t_tile", "RGBA32F", "FLOAT_2D", {"WRITE"})), ("n_g", "ntx")),
-    "SORT": (("t_start", "t_lb", "t_raw", "t_tile"), (("t_ent", "RGBA32F", "FLOAT_2D", {"WRITE"}),),
-             ("n_ent",)),
-}
+STAGES = asm.TILE_STAGES  # stage: (samplers, images, ints)
 
 
 class TooMany(Exception):
@@ -30,24 +21,7 @@ class TooMany(Exception):
 
 
 def _shader(stage):
-    import gpu
-
-    sh = _SHADERS.get(stage)
-    if sh is None:
-        samplers, images, ints = STAGES[stage]
-        info = gpu.types.GPUShaderCreateInfo()
-        for slot, (name, fmt, kind, qual) in enumerate(images):
-            info.image(slot, fmt, kind, name, qualifiers=qual)
-        for slot, name in enumerate(samplers):
-            info.sampler(slot, "FLOAT_2D", name)
-        for name in ints:
-            info.push_constant("INT", name)
-        info.define(f"STAGE_{stage}", "1")
-        compute.define_layout(info)
-        info.local_group_size(GROUP, 1)
-        info.compute_source(compute.glsl("tiles.glsl"))
-        sh = _SHADERS[stage] = gpu.shader.create_from_info(info)
-    return sh
+    return compute.compiled(asm.tiles_program(stage))
 
 
 def _run(stage, n, tex, ints):
