@@ -36,7 +36,7 @@ def main(argv=None):
     start()
     gdev = addon_module("gaussvdb_addon.gpu.device")
     tiles = addon_module("gaussvdb_addon.gpu.tiles")
-    from kernels.render import gpu_layout_tiles
+    from kernels.render.gpu import tables_tiles
     context = addon_module("gaussvdb_addon.gpu.context")
     files = a.paths or [os.path.join(os.path.dirname(HERE), "samples", "mantaflow_smoke_r128_f040.vdb")]
     for f in files:
@@ -55,7 +55,7 @@ def main(argv=None):
             print(f"  {lists}-built lists: dispatch and readback alone (lists kept) {draw:8.1f} ms")
         (ms_c, _), (ms_g, dg) = res["CPU"], res["GPU"]
         frame = dg.begin_frame(sc, cam, tf)
-        lc = best_ms(lambda: gpu_layout_tiles.cpu_lists(frame), a.repeat)
+        lc = best_ms(lambda: tables_tiles.cpu_lists(frame), a.repeat)
         lg = context.run(lambda: best_ms(lambda: tiles.build(frame)[0]["t_ent"].read(), a.repeat))
         print(f"  lists alone: CPU {lc:8.1f} ms, GPU {lg:8.1f} ms")
         print(f"{os.path.basename(f)} {a.mode} {a.lod} {a.size}x{a.size}: CPU-built lists {ms_c:8.1f} ms/frame"

@@ -23,9 +23,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from kernels.lod import build_lod  # noqa: E402  (after the sys.path set-up above)
-from kernels.render import MODES, Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, clip  # noqa: E402
-from kernels.render.lights import Light  # noqa: E402
-from kernels.render.synthetic import grid_from_dense  # noqa: E402
+from kernels.render import MODES, Camera, CPUDevice, RenderObject, RenderScene, TransferFunction  # noqa: E402
+from kernels.render.scene import clip  # noqa: E402
+from kernels.render.scene.lights import Light  # noqa: E402
+from kernels.render.scene.synthetic import grid_from_dense  # noqa: E402
 from kernels.vdb import read_vdb  # noqa: E402
 
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")

@@ -29,7 +29,7 @@ from bench_render import load, world_box  # noqa: E402
 
 from kernels.lod import PRESETS  # noqa: E402
 from kernels.render import MODES, Camera, CPUDevice, RenderObject, RenderScene, TransferFunction  # noqa: E402
-from kernels.render.lights import Light  # noqa: E402
+from kernels.render.scene.lights import Light  # noqa: E402
 
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
 SUN = Light("sun", (0.4, 0.3, -1.0), (1.0, 0.95, 0.9), 1.0)

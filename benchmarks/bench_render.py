@@ -47,7 +47,7 @@ def load(path, lod):
 
 
 def synthetic():
-    from kernels.render.synthetic import gaussian_set, grid_from_dense
+    from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
     n = 64
     x = np.arange(n)

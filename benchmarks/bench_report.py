@@ -184,7 +184,7 @@ def setup_view(g, a):
     """World box, camera, transfer function for one grid (documented in the module docstring)."""
     from kernels.lod import value_range
     from kernels.render import Camera, TransferFunction
-    from kernels.render.colormaps import colormap, stops_from_table
+    from kernels.render.scene.colormaps import colormap, stops_from_table
 
     m = np.asarray(g.index_to_world, np.float64)
     lo, hi = world_box(g, m)

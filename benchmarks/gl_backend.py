@@ -1,5 +1,5 @@
 """The GPU device's shaders outside Blender: plain OpenGL 4.3 compute on moderngl (a headless EGL
-context), drawing a saved frame (kernels/render/gpu_case.py's ``.npz``) exactly as the GPU device
+context), drawing a saved frame (kernels/render/gpu/case.py's ``.npz``) exactly as the GPU device
 (gaussvdb_addon/gpu) does: the same tables uploaded as the same textures, the screen-tile lists'
 three passes and the counts' readback where the device builds them on the GPU, one dispatch of the
 mode's shader over the frame, the passes read back. The shaders come from glsl_assembly, which
@@ -26,7 +26,7 @@ _ASM = os.path.join(ROOT, "kernels", "render", "glsl_assembly.py")
 
 
 def assembly():
-    """kernels/render/glsl_assembly.py loaded by path (the package's __init__ imports numba)."""
+    """kernels/render/gpu/assembly.py loaded by path (the package's __init__ imports numba)."""
     mod = sys.modules.get("glsl_assembly")
     if mod is None:
         spec = importlib.util.spec_from_file_location("glsl_assembly", _ASM)

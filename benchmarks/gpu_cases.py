@@ -1,4 +1,4 @@
-"""GPU frames saved as files (kernels/render/gpu_case.py's ``.npz``, one per file, mode and LOD,
+"""GPU frames saved as files (kernels/render/gpu/case.py's ``.npz``, one per file, mode and LOD,
 with one view per image size and the CPU device's image of each): scenes synced here through the
 CPU device's packing and the GPU device's frame set-up (numba, the bpy module), for the
 standalone OpenGL backend (benchmarks/gl_backend.py) and the GPU machine's run (gpu_real.py).
@@ -37,7 +37,7 @@ _LODS = {}
 
 
 def _grids():
-    from kernels.render.synthetic import grid_from_dense
+    from kernels.render.scene.synthetic import grid_from_dense
 
     g = np.arange(N)
     X, Y, Z = np.meshgrid(g, g, g, indexing="ij")
@@ -61,7 +61,7 @@ def synthetic_scene(name, mode, lod="medium"):
     from kernels.lod import build_lod
     from kernels.lod.second_grid import attach
     from kernels.render import Camera, RenderObject, RenderScene, TransferFunction
-    from kernels.render.lights import Light
+    from kernels.render.scene.lights import Light
 
     fog, temp, ls = _lod("grids", _grids)
     g_fog = _lod(("fog", lod), lambda: build_lod(fog, lod))
@@ -97,7 +97,7 @@ def save_case(gdev, path, scene, cams, tf, meta, cpu=None):
     """One case file of a scene at each camera (gpu_case.save) from the GPU device's frame set-up
     (gdev: a GPUDevice; no GPU context needed); cpu: a CPUDevice for the images beside the tables
     (None: none saved). Returns the GPU device's fallback (then no file) or None."""
-    from kernels.render import gpu_case
+    from kernels.render.gpu import case as gpu_case
 
     def views():
         for cam in cams:

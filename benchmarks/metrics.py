@@ -39,7 +39,7 @@ def covered_pixels(img) -> int:
 
 def to_display(img, max_side=256) -> np.ndarray:
     """uint8 sRGB (H, W, 3), top row first, composited over black, downsampled to <= max_side."""
-    from kernels.render.colormaps import linear_to_srgb
+    from kernels.render.scene.colormaps import linear_to_srgb
 
     a = _rgb(img)[::-1]
     step = max(1, math.ceil(max(a.shape[:2]) / max_side))

@@ -54,7 +54,7 @@ def dense_box(g):
     """float32 (X, Y, Z) of the grid's active index box padded by one voxel (the background there),
     and the index of its voxel (0, 0, 0): leaf values (inactive ones too, as the reference mode
     samples them) and active tiles; elsewhere the background."""
-    from kernels.render.accel import _grid_leaves
+    from kernels.render.inputs.accel import _grid_leaves
 
     lo = np.asarray(g.bbox_min, np.int64) - 1
     hi = np.asarray(g.bbox_max, np.int64) + 2

@@ -63,10 +63,13 @@ def sources_tag(subpackage: str) -> str:
     if tag is None:
         h = hashlib.sha1()
         folder = os.path.join(_KERNELS, subpackage)
-        for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else ():
-            if name.endswith(".py"):
-                with open(os.path.join(folder, name), "rb") as fh:
-                    h.update(name.encode() + b"\0" + fh.read())
+        for here, dirs, names in sorted(os.walk(folder)):  # its subpackages too (render/cpu, ...)
+            dirs.sort()
+            for name in sorted(names):
+                if name.endswith(".py"):
+                    rel = os.path.relpath(os.path.join(here, name), folder)
+                    with open(os.path.join(here, name), "rb") as fh:
+                        h.update(rel.encode() + b"\0" + fh.read())
         tag = _tags[subpackage] = h.hexdigest()[:12]
     return tag
 

@@ -1,4 +1,4 @@
-"""The colormaps by name: the tables in kernels/render/colormaps.npz (tools/gen_colormaps.py writes
+"""The colormaps by name: the tables in kernels/render/scene/colormaps.npz (tools/gen_colormaps.py writes
 them from these matplotlib names), the transfer-function menu, the command line and the shipped
 presets all use this list. Plain Python on purpose, outside kernels/render (whose __init__ loads
 numba), so the extension registers its enums without loading the kernels."""

@@ -6,10 +6,10 @@ from enum import IntEnum
 
 class Mode(IntEnum):
     """The render modes; the kernels receive them as ints (int(Mode.FIELD) == 1)."""
-    PARTICLES = 0  # closed-form Gaussian segments (render/_cpu_gauss)
-    FIELD = 1      # the summed Gaussian field, sampled (render/_cpu_gauss)
-    PAPER = 2      # the seed paper's closest hits (render/_cpu_pieces)
-    REFERENCE = 3  # trilinear voxel samples of the source grid (render/_cpu_pieces)
+    PARTICLES = 0  # closed-form Gaussian segments (render/cpu/gauss)
+    FIELD = 1      # the summed Gaussian field, sampled (render/cpu/gauss)
+    PAPER = 2      # the seed paper's closest hits (render/cpu/pieces)
+    REFERENCE = 3  # trilinear voxel samples of the source grid (render/cpu/pieces)
     SPLAT = 4      # the Gaussian field on a lattice at its own scale, drawn as REFERENCE (render/splat_scene)
 
     @classmethod

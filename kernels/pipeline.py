@@ -331,7 +331,7 @@ def convert_steps(filepath, options=DEFAULTS, skipped=None):
                           f"{cg.nonfinite_voxels:,} non-finite (NaN/Inf) voxels; they were made "
                           "inactive", RuntimeWarning, stacklevel=2)
         if o.value_figures and g.grid_class != "level_set":  # level sets: coloured by position
-            from .render.transfer import voxel_stats
+            from .render.scene.transfer import voxel_stats
 
             cg.values = voxel_stats(g)
         cg.seconds_compile = _warm_up(g, o)
@@ -344,7 +344,7 @@ def convert_steps(filepath, options=DEFAULTS, skipped=None):
             if cgrid is not None and g.grid_class != "level_set":  # level sets: coloured by position
                 add_color_values(cg.lods[-1], g, cgrid)
         if cgrid is not None and g.grid_class != "level_set":
-            from .render.transfer import voxel_stats
+            from .render.scene.transfer import voxel_stats
 
             cg.color_grid = cgrid.name
             cg.color_stats = dict(voxel_stats(cgrid), background=float(cgrid.background or 0.0))

@@ -1,6 +1,6 @@
-"""Generate kernels/render/colormaps.npz from matplotlib (run once; the .npz is committed).
+"""Generate kernels/render/scene/colormaps.npz from matplotlib (run once; the .npz is committed).
 
-    python tools/gen_colormaps.py [--out kernels/render/colormaps.npz]
+    python tools/gen_colormaps.py [--out kernels/render/scene/colormaps.npz]
 
 The names are kernels/colormap_names.py's. Each table is 256 x 3 float32, sRGB-encoded in [0, 1],
 exactly matplotlib's ``colormaps[name].resampled(256)(arange(256))[:, :3]``. The tables are data, never typed by hand.

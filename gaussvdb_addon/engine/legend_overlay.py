@@ -1,10 +1,10 @@
 """The colour legend of a scene (scene.gaussvdb.show_legend): composited into the Combined pass
-of final renders, and drawn over the rendered viewport. The raster is kernels/render/legend.py;
+of final renders, and drawn over the rendered viewport. The raster is kernels/render/scene/legend.py;
 this module only picks the entries, the corner and the size, and draws it with ``gpu``."""
 
 import numpy as np
 
-from ...kernels.render import legend
+from ...kernels.render.scene import legend
 
 
 def patch(settings, sync, tf, image_height):

@@ -22,9 +22,10 @@ import threading
 
 import numpy as np
 
-from ...kernels.render import RenderObject, RenderScene, TransferFunction, clip, value_range, voxel_stats
-from ...kernels.render.legend import LegendEntry
-from ...kernels.render.lights import Light
+from ...kernels.render import RenderObject, RenderScene, TransferFunction, value_range, voxel_stats
+from ...kernels.render.scene import clip
+from ...kernels.render.scene.legend import LegendEntry
+from ...kernels.render.scene.lights import Light
 from ..io import schema
 from . import blender_settings, sequence_frames
 

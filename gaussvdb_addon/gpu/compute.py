@@ -1,12 +1,12 @@
 """The thin part that calls Blender's ``gpu`` module: compute shaders assembled from the GLSL files
-(kernels/render/glsl: common + the mode's file + main), numpy tables uploaded as textures, one
+(kernels/render/gpu/glsl: common + the mode's file + main), numpy tables uploaded as textures, one
 dispatch per band of rows, the passes read back. Every function here must run inside a GPU
 context (context.run)."""
 from __future__ import annotations
 
 import numpy as np
 
-from ...kernels.render import glsl_assembly as asm
+from ...kernels.render.gpu import assembly as asm
 
 GLSL_DIR = asm.GLSL_DIR
 GROUP = asm.GROUP  # work group: GROUP x GROUP pixels

@@ -1,18 +1,18 @@
 """GPUDevice: the CPU device's scene sync and frame set-up (it holds a CPUDevice), drawn by compute
-shaders on Blender's ``gpu`` module. Per frame key the mode's tables (kernels/render/gpu_layout)
+shaders on Blender's ``gpu`` module. Per frame key the mode's tables (kernels/render/gpu/tables*.py)
 are uploaded once (geometry once per sync), then each render() call is one dispatch per step of
 rows and a readback; ``render_texture`` leaves the image on the GPU (the viewport draws it).
 
 Adding a mode: a GLSL file beside common.glsl defining ``void trace_mode(Ray r, inout State st)``,
 its tables in gpu_layout.MODE_TABLES (geometry, frame), and its shader in the mode's entry of
-kernels/render/modes.py (``gpu``). Frames this device does not draw (modes without a shader) are
+kernels/render/devices/modes.py (``gpu``). Frames this device does not draw (modes without a shader) are
 refused; frames the GPU cannot draw exactly (``fallback(frame)``) go to the CPU device.
 
 Lit volumes are drawn in every mode that has them (reference, particles, field; paper has none):
 the shaders are then compiled with LIT (the Gaussian modes' shading code, common.glsl's
 shade_sample), the shadow grids and particles' centre gradients come from the CPU device's frame.
 Volumes coloured by a second grid are drawn here in every mode too (their tables:
-gpu_layout_color, added to every mode's; glsl/color.glsl).
+tables_color, added to every mode's; glsl/color.glsl).
 
 The Gaussian modes' screen-tile lists are built here on the GPU (tiles.py; the CPU device's frame
 then has none: its begin_frame's ``lists_elsewhere``, Frame.tiles_elsewhere); lists too long for
@@ -26,20 +26,14 @@ import time
 
 import numpy as np
 
-from ...kernels.render import (  # _gauss: the Gaussian modes' tables
-    bands,
-    gpu_case,  # a frame's tables and defines (also saved as a file: benchmarks/gl_backend.py)
-    gpu_layout,
-    gpu_layout_color,  # the volumes coloured by a second grid
-    gpu_layout_gauss,
-    gpu_layout_tiles,
-    modes,
-)
-from ...kernels.render.cpu_device import CPUDevice
-from ...kernels.render.device import Device, register_device
+from ...kernels.render.devices import bands, modes
+from ...kernels.render.devices.cpu_device import CPUDevice
+from ...kernels.render.devices.device import Device, register_device
+from ...kernels.render.gpu import case, tables_color, tables_gauss, tables_tiles
+from ...kernels.render.gpu import tables as gpu_layout
 from . import compute, context, tiles
 
-# the shaders of the modes this device draws (kernels/render/modes.py), by name
+# the shaders of the modes this device draws (kernels/render/devices/modes.py), by name
 MODES = {m.name.lower(): s.gpu for m, s in modes.SPECS.items() if s.drawn_as is None and s.gpu is not None}
 STEP_ROWS = 64  # rows per dispatch when progress or cancel is asked for
 NO_LISTS = "no screen-tile lists"  # the fallback's word when neither device's lists fit
@@ -67,8 +61,8 @@ class GPUDevice(Device):
 
     def begin_frame(self, scene, camera, tf):
         frame = self.cpu.begin_frame(scene, camera, tf, lists_elsewhere=self.gpu_tiles)
-        if modes.spec(frame.mode).color == modes.GAUSSIANS and gpu_layout_color.colored(frame):
-            frame.color_values = self.cpu.color_values()  # (the Gaussians' colours: gpu_layout_color)
+        if modes.spec(frame.mode).color == modes.GAUSSIANS and tables_color.colored(frame):
+            frame.color_values = self.cpu.color_values()  # (the Gaussians' colours: tables_color)
         self.stats["seconds_setup"] = self.cpu.stats.get("seconds_setup", 0.0)
         return frame
 
@@ -86,7 +80,7 @@ class GPUDevice(Device):
     def fallback(frame):
         """Why this device hands the frame to the CPU device (None: it draws it)."""
         if modes.spec(frame.mode).draws == modes.GAUSSIANS:
-            return gpu_layout_gauss.unsupported(frame)
+            return tables_gauss.unsupported(frame)
         return None
 
     def _cpu_render(self, *args, **kw):
@@ -95,7 +89,7 @@ class GPUDevice(Device):
 
     def _overflow(self, scene, camera, tf, rgba, dv, r0, c0):
         """Redraw on the CPU device the screen tiles with a ray that ran out of hit slots."""
-        tiles = gpu_layout_gauss.overflow_tiles(dv[..., 0], r0, c0)
+        tiles = tables_gauss.overflow_tiles(dv[..., 0], r0, c0)
         for (a, b), (c, d) in tiles:
             out = self._cpu_render(scene, camera, tf, rows=(a, b), cols=(c, d))
             rgba[a - r0:b - r0, c - c0:d - c0] = out["Combined"]
@@ -114,15 +108,15 @@ class GPUDevice(Device):
         """The frame's uploaded tables (geometry reused while the sync is the same)."""
         name, spec = self._spec(frame)
         geo_fn = gpu_layout.MODE_TABLES[name][0]
-        gkey = (self.cpu.geometry_version, name, gpu_layout_gauss.lit(frame))
+        gkey = (self.cpu.geometry_version, name, tables_gauss.lit(frame))
         if self._geom is None or self._geom[0] != gkey:
             self._geom = None
             t = geo_fn(frame)
             self._geom = (gkey, t, compute.upload(t.textures))
         if self._up is None or self._up[0] != frame.key:
-            t = gpu_case.frame_tables(frame, name)
+            t = case.frame_tables(frame, name)
             tex = compute.upload(t.textures)
-            if gpu_layout_gauss.on_gpu(frame):
+            if tables_gauss.on_gpu(frame):
                 tex.update(self._tile_lists(frame))
                 t.textures.update({n: np.zeros((1, 1, 4), np.float32) for n in tiles.LISTS})  # names, kinds
             self._up = (frame.key, t, tex)
@@ -132,7 +126,7 @@ class GPUDevice(Device):
         tex = dict(gtex, **ftex)
         arrays = dict(gt.textures, **ft.textures)
         self.stats["gpu_bytes"] = gpu_layout.nbytes(gt) + gpu_layout.nbytes(ft) + sum(
-            16 * ftex[n].width * ftex[n].height for n in tiles.LISTS if gpu_layout_gauss.on_gpu(frame))
+            16 * ftex[n].width * ftex[n].height for n in tiles.LISTS if tables_gauss.on_gpu(frame))
         return name, spec, arrays, tex, ints
 
     def _tile_lists(self, frame):
@@ -142,7 +136,7 @@ class GPUDevice(Device):
             self.stats.update(gpu_tile_entries=n, tile_lists="GPU")
             return lists
         except tiles.TooMany as e:
-            t = gpu_layout_tiles.cpu_lists(frame)
+            t = tables_tiles.cpu_lists(frame)
             if t is None:
                 raise NoLists(str(e)) from None
             self.stats.update(gpu_tile_entries=int(t["t_ent"].size // 4), tile_lists="CPU")
@@ -152,7 +146,7 @@ class GPUDevice(Device):
         import gpu
 
         name, spec, arrays, tex, ints = self._tables(frame)
-        spec = dataclasses.replace(spec, defines=spec.defines + gpu_case.frame_defines(frame, arrays))
+        spec = dataclasses.replace(spec, defines=spec.defines + case.frame_defines(frame, arrays))
         sh = compute.shader(name, spec, arrays, ints)
         self._out = compute.dispatch(sh, tex, ints, rows, cols, self._out, compute.group(spec))
         self.renderer = gpu.platform.renderer_get()
@@ -209,7 +203,7 @@ class GPUDevice(Device):
 
 
 def register():
-    """GPU in kernels.render.device's registry (available_devices lists it where the probe says yes)."""
+    """GPU in kernels.render.devices.device's registry (available_devices lists it where the probe says yes)."""
     from . import probe
 
     register_device("GPU", GPUDevice, lambda: probe.probe()[0])

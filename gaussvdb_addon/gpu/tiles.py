@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...kernels.render import glsl_assembly as asm
-from ...kernels.render import gpu_layout, gpu_layout_tiles
+from ...kernels.render.gpu import assembly as asm
+from ...kernels.render.gpu import tables as gpu_layout
+from ...kernels.render.gpu import tables_tiles
 from . import compute
 
 GROUP = asm.TILES_GROUP  # invocations per work group (one Gaussian or one entry each)
@@ -63,16 +64,16 @@ def build(frame):
     import gpu
 
     m = int(frame.gauss.mu.shape[0])
-    ntx, nty = gpu_layout_tiles.tile_grid(frame)
+    ntx, nty = tables_tiles.tile_grid(frame)
     limit = gpu.capabilities.max_texture_size_get()
     if max(ntx, nty) > limit or -(-m // gpu_layout.ROW_TEXELS) > limit:
         raise TooMany(f"{ntx}x{nty} tiles, {m} Gaussians")
-    tex = compute.upload(gpu_layout_tiles.tile_inputs(frame))
+    tex = compute.upload(tables_tiles.tile_inputs(frame))
     tex.update(tl_box=_table(m), t_lb=_table(m), cnt=_counter(ntx, nty))
     _run("FOOT", m, tex, {"n_g": m})
     buf = tex["cnt"].read()
     buf.dimensions = ntx * nty
-    start = gpu_layout_tiles.starts(np.frombuffer(buf, np.uint32).reshape(nty, ntx))
+    start = tables_tiles.starts(np.frombuffer(buf, np.uint32).reshape(nty, ntx))
     total = int(start[-1])
     if total > MAX_ENTRIES or -(-max(total, 1) // gpu_layout.ROW_TEXELS) > limit:
         raise TooMany(f"{total} tile entries")

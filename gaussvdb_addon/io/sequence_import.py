@@ -72,7 +72,7 @@ def _frame_pass(pat, present, wanted, progress):
     cannot be read -> {number: reason}. Returns (figures {grid: {number: stats}}, boxes {grid:
     (lo, hi)}, {grid: frames holding voxels}, grid names in order of appearance, unreadable)."""
     from ...kernels import vdb
-    from ...kernels.render.transfer import voxel_stats
+    from ...kernels.render.scene.transfer import voxel_stats
 
     figures, boxes, holds, names, unreadable = {}, {}, {}, [], {}
     for i, n in enumerate(present):

@@ -5,7 +5,7 @@ The point attributes themselves are described in io/schema.py (and README "Point
 the Subdivision modifier's viewport and render levels. With ``use_scene_tf`` off the object's own
 transfer function (the TransferFunctionProps fields) colours it instead of the scene's.
 ``lod_stats``: each LOD's figures from the import (lod_figures.py); ``stats_json`` the object's.
-Clipping (``clip_*``): Empties that cut the object (kernels/render/clip.py), in every mode.
+Clipping (``clip_*``): Empties that cut the object (kernels/render/scene/clip.py), in every mode.
 ``level_set_style``: level sets as lit surfaces (default) or translucent shells.
 ``shading``/``shadows``: volumes emissive (default) or lit by the scene's lights, with shadows.
 ``color_grid``: another grid of the file the Gaussians carry (gs_color); the ``color_*`` colour
@@ -90,7 +90,7 @@ class SurfaceProps:
 
 class VolumeShadingProps:
     """Volumes: emission-absorption, or lit by the scene's lights (Blinn-Phong on the field's
-    gradient, as VTK shades volumes), optionally with shadows (kernels/render/_cpu_lit.py)."""
+    gradient, as VTK shades volumes), optionally with shadows (kernels/render/cpu/lit.py)."""
     shading: EnumProperty(
         name="Shading", update=_tag, default="EMISSION",
         items=[("EMISSION", "Emission", "The transfer function's colour glows (emission-absorption)"),

@@ -76,7 +76,7 @@ class GaussVDBRenderSettings(TransferFunctionProps, bpy.types.PropertyGroup):
                                     description="Colour behind the volumes when the scene has no "
                                                 "World (otherwise the World's colour is used)")
 
-    # -- colour legend (kernels/render/legend.py draws it) -----------------------------------
+    # -- colour legend (kernels/render/scene/legend.py draws it) -----------------------------------
     show_legend: BoolProperty(name="Legend", default=False, update=_tag,
                               description="Draw a scalar bar (colormap, range, ticks, grid name) "
                                           "over the render and the viewport")

@@ -7,7 +7,7 @@ it, so a hand edit is told apart (``is_edited``) and not replaced silently. The 
 lazily (at render time, or when a colormap is picked): property update callbacks may run where
 datablocks cannot be created.
 
-Filling from a colormap: the 32 stops of kernels/render/colormaps.py's ``stops_from_table``
+Filling from a colormap: the 32 stops of kernels/render/scene/colormaps.py's ``stops_from_table``
 (the table within 1/255 for the smooth maps); edit the ramp's alpha freely afterwards.
 """
 
@@ -47,7 +47,7 @@ def ensure_texture(settings, colormap=None):
 
 @lru_cache(maxsize=64)
 def _stops(name, alpha):
-    from ...kernels.render.colormaps import colormap, stops_from_table
+    from ...kernels.render.scene.colormaps import colormap, stops_from_table
 
     return stops_from_table(colormap(name), MAX_STOPS, alpha)
 

@@ -15,7 +15,7 @@ DEFAULT_BAND_WIDTH = 0.5 * np.sqrt(3.0)
 # Where the surface passes within 1 - band_width of a layer of voxel centres and its normal is
 # near an axis, the band keeps that layer only: the signed distances there are all in
 # [0, 1 - band_width) voxel, and their mixture never reaches 0. The field draws the level
-# SURFACE_LEVEL voxel instead of 0 (kernels/render/_cpu_surface.py).
+# SURFACE_LEVEL voxel instead of 0 (kernels/render/cpu/surface.py).
 SURFACE_LEVEL = 1.0 - DEFAULT_BAND_WIDTH
 
 

@@ -57,7 +57,7 @@ def test_enum_items_are_the_fact_modules(addon, bpy_module):
         == mode_names.enum_items()
     assert scene_props["mode"].default == mode_names.DEFAULT.upper()
     assert {i[0].lower() for i in mode_names.enum_items()} == set(mode_names.NAMES)
-    assert _mod("kernels.render.scene").Mode is mode_names.Mode  # one home for the ids
+    assert _mod("kernels.render.scene.objects").Mode is mode_names.Mode  # one home for the ids
 
 
 def test_shipped_presets_name_only_known_facts():

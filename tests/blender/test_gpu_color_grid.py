@@ -23,7 +23,7 @@ from kernels.lod import build_lod
 from kernels.lod.gridprep import value_range
 from kernels.lod.second_grid import attach
 from kernels.render import Camera, RenderObject, RenderScene, TransferFunction
-from kernels.render.lights import Light
+from kernels.render.scene.lights import Light
 from kernels.vdb import read_vdb
 
 FIRE = os.path.join(DATA_DIR, "mantaflow_fire_r96_f035.vdb")

@@ -16,9 +16,9 @@ from vdb_fixtures import write_grid
 
 from kernels.lod import build_lod
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render.clip import plane_from_point_normal
-from kernels.render.lights import Light
-from kernels.render.synthetic import grid_from_dense
+from kernels.render.scene.clip import plane_from_point_normal
+from kernels.render.scene.lights import Light
+from kernels.render.scene.synthetic import grid_from_dense
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 N, W = 40, 64
@@ -119,7 +119,7 @@ def test_lit_volumes_match_the_cpu_device(gpu, cpu, shadows):
 def test_a_frame_the_gpu_cannot_draw_goes_to_the_cpu(gpu):
     """A Gaussian wider than the GPU's 1/sigma codes hold: the device draws the frame on the CPU
     (the same image) and says why."""
-    from kernels.render.synthetic import gaussian_set
+    from kernels.render.scene.synthetic import gaussian_set
 
     gs = gaussian_set([[0.0, 0.0, 0.0], [1.0, 0.5, 0.0]], [[1.0] * 3, [1e5] * 3], [1.0, 0.5], [1.0, 1.0])
     sc = RenderScene([RenderObject(gs)], mode="particles")

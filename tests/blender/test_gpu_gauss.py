@@ -10,7 +10,7 @@ import pytest
 from references import GPU_MIN_DB, psnr
 
 from kernels.render import Camera, RenderObject, RenderScene, TransferFunction
-from kernels.render.synthetic import gaussian_set
+from kernels.render.scene.synthetic import gaussian_set
 
 W = 48
 TF = TransferFunction.from_colormap("viridis", 0, 1.0, density=0.4)
@@ -107,7 +107,7 @@ def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):
     import gpu as gpu_module
     from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import compute, context
 
-    from kernels.render import gpu_layout_gauss as L
+    from kernels.render.gpu import tables_gauss as L
 
     sc = RenderScene([RenderObject(varied())], mode="particles")
     fr = cpu.begin_frame(sc, CAM, TF)

@@ -13,9 +13,9 @@ from conftest import SAMPLE
 from references import psnr
 
 from kernels.render import Camera, RenderObject, RenderScene, TransferFunction
-from kernels.render.camera import generate_rays
-from kernels.render.lights import Light
-from kernels.render.synthetic import gaussian_set
+from kernels.render.scene.camera import generate_rays
+from kernels.render.scene.lights import Light
+from kernels.render.scene.synthetic import gaussian_set
 
 LIT_MIN_DB = 60.0  # GPU (float32) against CPU (float64)
 W = 32

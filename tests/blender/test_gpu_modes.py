@@ -1,4 +1,4 @@
-"""The GPU device's modes are the table's (kernels/render/modes.py): it draws every mode whose row
+"""The GPU device's modes are the table's (kernels/render/devices/modes.py): it draws every mode whose row
 has a GPU shader, with that shader, and a derived mode through the mode it is drawn as."""
 
 

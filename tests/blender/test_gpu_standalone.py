@@ -1,9 +1,9 @@
 """The GPU device's shaders outside Blender (benchmarks/gl_backend.py: plain OpenGL 4.3 on
 moderngl, a headless EGL context, in a process of its own with no bpy) draw the frame the GPU
-device saved (kernels/render/gpu_case.py) to the image Blender's ``gpu`` module draws, bit for bit
+device saved (kernels/render/gpu/case.py) to the image Blender's ``gpu`` module draws, bit for bit
 (Combined, Depth, Value; llvmpipe here), in every mode on a fog volume, a level set, two objects, a
 lit volume (with shadows) and a volume coloured by a second grid: the shaders come from one
-assembly (kernels/render/glsl_assembly.py) in both."""
+assembly (kernels/render/gpu/assembly.py) in both."""
 import json
 import os
 import subprocess
@@ -62,7 +62,7 @@ def test_standalone_backend_draws_blenders_image(drawn, name, mode):
 def test_one_assembly_declares_what_the_create_info_declares():
     """glsl_assembly's GLSL 4.30 header: every sampler, image and push constant of the Program at
     its slot, the defines before the source, the work group; nothing the .glsl files declare."""
-    from kernels.render import glsl_assembly as asm
+    from kernels.render.gpu import assembly as asm
 
     p = asm.mode_program("reference", "reference.glsl", ("WALK",),
                          {"frame": "FLOAT_2D", "atlas": "FLOAT_3D"}, {"n_obj": 1, "atlas_sx": 2})

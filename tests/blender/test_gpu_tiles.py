@@ -26,7 +26,7 @@ def mods(addon):
 
 @pytest.mark.parametrize("name", ["fog", "two objects"])
 def test_gpu_lists_hold_the_cpu_lists(mods, name):
-    from kernels.render import gpu_layout_tiles
+    from kernels.render.gpu import tables_tiles
 
     context, device, tiles = mods
     dev = device.GPUDevice(gpu_tiles=True)
@@ -39,11 +39,11 @@ def test_gpu_lists_hold_the_cpu_lists(mods, name):
                 read_table(lists["t_lb"], m)[:, 0])
 
     start, ent, lb = context.run(run)
-    want = gpu_layout_tiles.cpu_lists(frame)
+    want = tables_tiles.cpu_lists(frame)
     ws = want["t_start"].reshape(-1)
     we = want["t_ent"].reshape(-1, 4)
     wlb = want["t_lb"].reshape(-1, 4)[:m, 0]
-    ntiles = int(np.prod(gpu_layout_tiles.tile_grid(frame)))
+    ntiles = int(np.prod(tables_tiles.tile_grid(frame)))
     fin = np.isfinite(wlb)
     np.testing.assert_allclose(lb[fin], wlb[fin], rtol=1e-5, atol=1e-5)
     assert np.all(lb[fin] <= wlb[fin] + 1e-6 * (np.abs(wlb[fin]) + 1))

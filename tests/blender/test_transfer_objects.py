@@ -284,7 +284,7 @@ def test_viewport_overlay_draws_the_legend_with_gpu(tmp_path):
     if proc.returncode != 0 and ("EGL" in proc.stderr or "epoxy" in proc.stderr) and not out.exists():
         pytest.skip("no GPU context for headless drawing here: " + proc.stderr.strip()[-200:])
     assert proc.returncode == 0, proc.stderr[-3000:]
-    from kernels.render.legend import composite
+    from kernels.render.scene.legend import composite
 
     z = np.load(out)
     px, patch = z["pixels"], z["patch"]

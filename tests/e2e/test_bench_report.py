@@ -152,7 +152,7 @@ def _blob_view(size=48):
     """A smooth blob grid, its view and a CLI-shaped args namespace for the bench helpers."""
     import bench_report
 
-    from kernels.render.synthetic import grid_from_dense
+    from kernels.render.scene.synthetic import grid_from_dense
 
     n = 24
     x = np.arange(n)

@@ -1,12 +1,12 @@
-"""The reference mode's voxel bricks (kernels/render/bricks.py) against a voxel-by-voxel lookup:
+"""The reference mode's voxel bricks (kernels/render/inputs/bricks.py) against a voxel-by-voxel lookup:
 leaves with missing neighbours (background in the apron), NaN voxels (ignored by the value
 range), negative origins, and a leaf with no neighbour at all."""
 import numpy as np
 from conftest import SAMPLE
 
-from kernels.render.accel import _grid_leaves
-from kernels.render.bricks import leaf_bricks
-from kernels.render.synthetic import grid_from_dense
+from kernels.render.inputs.accel import _grid_leaves
+from kernels.render.inputs.bricks import leaf_bricks
+from kernels.render.scene.synthetic import grid_from_dense
 from kernels.vdb import read_vdb
 
 BG = -0.5
@@ -67,7 +67,7 @@ def test_the_bundled_sample_builds_the_same_bricks():
 
 
 def test_sub_block_max_is_the_max_of_the_voxels_its_samples_read():
-    from kernels.render.bricks import sub_max
+    from kernels.render.inputs.bricks import sub_max
 
     org, val = sparse_grid()
     b, _, _ = leaf_bricks(org, val, BG)

@@ -10,7 +10,7 @@ from kernels import pipeline
 from kernels.lod import PRESETS, build_lod
 from kernels.lod.second_grid import attach, gaussian_boxes, sample, second_bricks, second_values
 from kernels.render import MODES, Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render.synthetic import grid_from_dense
+from kernels.render.scene.synthetic import grid_from_dense
 from kernels.vdb import read_vdb
 
 BACKGROUND = 0.25

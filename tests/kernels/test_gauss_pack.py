@@ -1,10 +1,11 @@
-"""The compiled packer of the drawn Gaussians (kernels/render/gauss_pack.py, accel.build_gaussians)
+"""The compiled packer of the drawn Gaussians (kernels/render/inputs/gauss_pack.py, accel.build_gaussians)
 against the plain numpy formulas it replaced: bit for bit, dropped Gaussians included."""
 import numpy as np
 import pytest
 
-from kernels.render import RenderObject, accel
-from kernels.render.synthetic import gaussian_set
+from kernels.render import RenderObject
+from kernels.render.inputs import accel
+from kernels.render.scene.synthetic import gaussian_set
 
 
 def numpy_drawn(gs, k, max_level):
@@ -84,7 +85,7 @@ def test_a_set_with_nothing_drawn_has_no_bounds():
 
 
 def test_test_records_are_centres_and_inverse_sigmas(mixed_set):
-    from kernels.render import packing
+    from kernels.render.inputs import packing
 
     acc = accel.build_gaussians([RenderObject(mixed_set)], 3.0)
     rec = packing.test_records(acc)

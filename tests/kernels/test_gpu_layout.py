@@ -1,11 +1,11 @@
-"""The GPU device's texture tables (kernels/render/gpu_layout.py), read back the way common.glsl
+"""The GPU device's texture tables (kernels/render/gpu/tables.py), read back the way common.glsl
 and reference.glsl fetch them, on a real CPU frame (no Blender)."""
 import numpy as np
 import pytest
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render import gpu_layout as L
-from kernels.render.synthetic import grid_from_dense
+from kernels.render.gpu import tables as L
+from kernels.render.scene.synthetic import grid_from_dense
 
 
 def texel(table, e):

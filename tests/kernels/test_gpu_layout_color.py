@@ -1,4 +1,4 @@
-"""The GPU tables of volumes coloured by a second grid (kernels/render/gpu_layout_color.py and the
+"""The GPU tables of volumes coloured by a second grid (kernels/render/gpu/tables_color.py and the
 reference atlas's colour bricks), read back as glsl/color.glsl and reference.glsl fetch them, on
 real CPU frames of two objects, one coloured by a second grid (no Blender)."""
 import numpy as np
@@ -8,9 +8,9 @@ from test_gpu_layout import scalar, texel
 from kernels.lod import build_lod
 from kernels.lod.second_grid import attach
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render import gpu_layout as L
-from kernels.render import gpu_layout_color as C
-from kernels.render.synthetic import grid_from_dense
+from kernels.render.gpu import tables as L
+from kernels.render.gpu import tables_color as C
+from kernels.render.scene.synthetic import grid_from_dense
 
 TF = TransferFunction.from_colormap("viridis", 0, 1)
 CTF = TransferFunction.from_colormap("inferno", 0.0, 2.0)

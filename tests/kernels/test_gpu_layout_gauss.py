@@ -3,8 +3,8 @@ and records as the shaders fetch them, the tiles of overflowing rays."""
 import numpy as np
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render import gpu_layout_gauss as L
-from kernels.render.synthetic import gaussian_set
+from kernels.render.gpu import tables_gauss as L
+from kernels.render.scene.synthetic import gaussian_set
 
 
 def test_mask_pieces_round_trip():

@@ -2,11 +2,12 @@
 as tiles.glsl reads them, the prefix sum, and the CPU's lists as the fallback tables."""
 import numpy as np
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, layout
-from kernels.render import gpu_layout_gauss as LG
-from kernels.render import gpu_layout_tiles as L
-from kernels.render._cpu_tiles import tile_camera
-from kernels.render.synthetic import gaussian_set
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render.cpu.tiles import tile_camera
+from kernels.render.gpu import tables_gauss as LG
+from kernels.render.gpu import tables_tiles as L
+from kernels.render.inputs import layout
+from kernels.render.scene.synthetic import gaussian_set
 
 TF = TransferFunction.from_colormap("viridis", 0, 1)
 CAM = Camera.frame_box([0] * 3, [12] * 3, 24, 16)

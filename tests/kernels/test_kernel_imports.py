@@ -36,7 +36,7 @@ def test_the_graph_is_read():
     mods = _modules()
     lod = _imports("kernels.lod.build", mods["kernels.lod.build"], mods)
     assert "kernels.lod.schemes" in lod and "kernels.lod.gridprep" in lod
-    assert "kernels.jit" in _imports("kernels.render._cpu", mods["kernels.render._cpu"], mods)
+    assert "kernels.jit" in _imports("kernels.render.cpu.pixels", mods["kernels.render.cpu.pixels"], mods)
 
 
 def test_registration_loads_no_numba(tmp_path):

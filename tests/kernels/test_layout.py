@@ -1,4 +1,4 @@
-"""The one declaration of the kernels' packed records (kernels/render/layout.py): the shaders
+"""The one declaration of the kernels' packed records (kernels/render/inputs/layout.py): the shaders
 hold no copy of a value it declares, the packers fill records of its sizes where its names
 say, and numba compiles a named offset as it compiles the literal."""
 import glob
@@ -7,22 +7,13 @@ import re
 
 import numpy as np
 
-from kernels.render import (
-    Camera,
-    CPUDevice,
-    RenderObject,
-    RenderScene,
-    TransferFunction,
-    gauss_pack,
-    gpu_layout,
-    gpu_layout_color,
-    gpu_layout_gauss,
-    gpu_layout_tiles,
-    layout,
-    lights,
-)
-from kernels.render.packing import Scratch, pack_settings
-from kernels.render.synthetic import gaussian_set
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render.gpu import tables as gpu_layout
+from kernels.render.gpu import tables_color, tables_gauss, tables_tiles
+from kernels.render.inputs import gauss_pack, layout
+from kernels.render.inputs.packing import Scratch, pack_settings
+from kernels.render.scene import lights
+from kernels.render.scene.synthetic import gaussian_set
 
 GLSL = sorted(glob.glob(os.path.join(os.path.dirname(layout.__file__), "glsl", "*.glsl")))
 NUMBER = re.compile(r"(?<![\w.])(\d+\.\d*(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+|\.\d+(?:[eE][-+]?\d+)?|\d+)u?(?![\w.])")
@@ -154,25 +145,25 @@ def test_the_packers_fill_the_declared_records():
     table = gpu_layout.frame_table(fr).reshape(-1)
     np.testing.assert_array_equal(table[layout.FR_CAM:layout.FR_CAM + layout.CAM_SIZE], fr.cam.astype(np.float32))
     assert table[layout.FR_SET + layout.SET_K] == np.float32(fr.transfer.settings[layout.SET_K])
-    g = gpu_layout_gauss.gauss_tables(fr.mode, fr.gauss)["g_rec"].reshape(-1, layout.GREC_SIZE)
+    g = tables_gauss.gauss_tables(fr.mode, fr.gauss)["g_rec"].reshape(-1, layout.GREC_SIZE)
     m = fr.gauss.mu.shape[0]
     np.testing.assert_array_equal(g[:m, layout.GREC_W], fr.gauss.w.astype(np.float32))
-    ti = gpu_layout_tiles.tile_inputs(fr)
+    ti = tables_tiles.tile_inputs(fr)
     tl = ti["tl_g"].reshape(-1, layout.TLG_SIZE)
     np.testing.assert_array_equal(tl[:m, layout.TLG_OBJ], 0)
     tp = ti["tl_par"].reshape(-1)
     assert (tp[layout.TLP_W], tp[layout.TLP_H]) == (20, 12)
-    assert gpu_layout_gauss.tile_tables(*gpu_layout_gauss.frame_tiles(fr))["t_ent"].reshape(-1)[
+    assert tables_gauss.tile_tables(*tables_gauss.frame_tiles(fr))["t_ent"].reshape(-1)[
         layout.TENT_ID] >= 0
-    assert gpu_layout_color.frame_tables(fr) == {}
+    assert tables_color.frame_tables(fr) == {}
 
 
 def test_scratch_fields_are_all_allocated_by_name():
     import inspect
 
-    from kernels.render import _cpu
+    from kernels.render.cpu import pixels
 
-    src = inspect.getsource(_cpu.new_scratch.py_func)
+    src = inspect.getsource(pixels.new_scratch.py_func)
     assert set(re.findall(r"(\w+)=np\.empty", src)) == set(Scratch._fields)
 
 

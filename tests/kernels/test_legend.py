@@ -1,4 +1,4 @@
-"""The colour legend raster (kernels/render/legend.py) and the voxel figures behind auto ranges
+"""The colour legend raster (kernels/render/scene/legend.py) and the voxel figures behind auto ranges
 (kernels/render/transfer.voxel_stats); no Blender here, except openvdb for a real grid."""
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from kernels.render import TransferFunction, voxel_stats
-from kernels.render.legend import (
+from kernels.render.scene.legend import (
     CORNERS,
     GLYPH_H,
     LegendEntry,

@@ -1,4 +1,4 @@
-"""The table of render modes (kernels/render/modes.py): every mode has an entry, a derived mode
+"""The table of render modes (kernels/render/devices/modes.py): every mode has an entry, a derived mode
 is its drawn mode over other data, the surface rule, the kernels' id tuples, the GPU's tables for
 every mode the table puts on the GPU, and no source file of the product compares modes by their
 order."""
@@ -10,8 +10,9 @@ import numpy as np
 
 from kernels import mode_names
 from kernels.mode_names import Mode
-from kernels.render import CPUDevice, RenderObject, RenderScene, modes
-from kernels.render.synthetic import gaussian_set, grid_from_dense
+from kernels.render import CPUDevice, RenderObject, RenderScene
+from kernels.render.devices import modes
+from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 PRODUCT = ("kernels", "gaussvdb_addon", "operators", "tools", "benchmarks", "__init__.py")
@@ -76,7 +77,7 @@ def test_the_kernels_id_tuples_are_the_columns():
 
 
 def test_every_gpu_mode_has_its_tables_and_shader_files():
-    from kernels.render import gpu_layout, gpu_layout_gauss  # noqa: F401  (registers its modes' tables)
+    from kernels.render.gpu import tables as gpu_layout  # noqa: F401  (registers its modes' tables)
 
     on_gpu = {m.name.lower() for m in modes.drawn_modes() if modes.spec(m).gpu is not None}
     assert set(gpu_layout.MODE_TABLES) == on_gpu
@@ -107,7 +108,7 @@ def test_no_source_compares_modes_by_order():
             for n, line in enumerate(fh, 1):
                 if ORDER.search(line):
                     bad.append(f"{os.path.relpath(path, ROOT)}:{n}: {line.strip()}")
-    assert not bad, "modes compared by their order (ask kernels/render/modes.py):\n" + "\n".join(bad)
+    assert not bad, "modes compared by their order (ask kernels/render/devices/modes.py):\n" + "\n".join(bad)
 
 
 def test_the_order_pattern_finds_what_it_should():

@@ -6,8 +6,8 @@ import pytest
 
 from kernels.colormap_names import MATPLOTLIB, NAMES
 from kernels.render import Camera, TransferFunction, colormap, colormap_names, generate_rays, srgb_to_linear
-from kernels.render.colormaps import linear_to_srgb, ramp_error, stops_from_table
-from kernels.render.transfer import value_range
+from kernels.render.scene.colormaps import linear_to_srgb, ramp_error, stops_from_table
+from kernels.render.scene.transfer import value_range
 
 
 def test_colormap_names_and_shapes():

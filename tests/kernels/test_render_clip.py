@@ -1,4 +1,4 @@
-"""Per-object clip planes and boxes (kernels.render.clip), in every mode: the cut side is empty,
+"""Per-object clip planes and boxes (kernels.render.scene.clip), in every mode: the cut side is empty,
 rays that do not cross a plane are untouched (bit for bit), and a cut across the view equals the
 camera's clip range placed there (the medium ends at the cut: no hollow shell)."""
 import dataclasses
@@ -6,8 +6,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, clip
-from kernels.render.synthetic import gaussian_set, grid_from_dense
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render.scene import clip
+from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
 N = 16
 CENTRE = np.full(3, 7.5)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from kernels.render import Camera, RenderObject, RenderScene, TransferFunction, get_device
-from kernels.render._cpu_fog import FOG_CHUNK, absorbed
-from kernels.render.synthetic import grid_from_dense
+from kernels.render.cpu.fog import FOG_CHUNK, absorbed
+from kernels.render.scene.synthetic import grid_from_dense
 
 
 def test_absorbed_matches_expm1_to_double_precision():
@@ -56,7 +56,7 @@ def test_transparent_sub_blocks_skip_no_sample_that_draws(monkeypatch):
     gives the same images bit for bit, and the same sample count, as sampling them all: table
     ranges from the voids' value and from above it (most of the blob then clear), oblique and
     axis-aligned views (rays along cell faces)."""
-    from kernels.render import packing
+    from kernels.render.inputs import packing
 
     dev = get_device("CPU")
     grid = blob()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render.synthetic import gaussian_set, grid_from_dense
+from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
 MODES = ["particles", "field", "paper", "reference"]
 

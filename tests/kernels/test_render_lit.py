@@ -6,9 +6,9 @@ import pytest
 
 from kernels.lod import build_lod
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render.camera import generate_rays
-from kernels.render.lights import Light
-from kernels.render.synthetic import gaussian_set, grid_from_dense
+from kernels.render.scene.camera import generate_rays
+from kernels.render.scene.lights import Light
+from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
 SUN = Light("sun", (1.0, -0.6, -0.8), (1.0, 0.9, 0.7), 1.5)
 SHADING = (0.1, 0.8, 0.3, 16.0)
@@ -142,7 +142,7 @@ def test_particles_lit_one_gaussian(dev, blob):
 def test_lit_gradients_are_the_other_gaussians_field():
     """Gaussians.grad: at each centre, the gradient of the other Gaussians' field (against finite
     differences) and the Gaussian's own weight; objects do not see each other."""
-    from kernels.render._cpu_lit import lit_gradients
+    from kernels.render.cpu.lit import lit_gradients
 
     rng = np.random.default_rng(3)
     mu = rng.uniform(-6, 18, (40, 3))

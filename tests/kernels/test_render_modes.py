@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, available_devices, get_device
-from kernels.render.synthetic import gaussian_set, grid_from_dense
+from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays
-from kernels.render.synthetic import gaussian_set
+from kernels.render.scene.synthetic import gaussian_set
 from tests.references import closed_form_alpha, quadrature_pixel
 
 mpmath.mp.dps = 50
@@ -17,8 +17,8 @@ def dev():
 
 
 def _k():
-    from kernels.render import _cpu
-    return _cpu
+    from kernels.render.cpu import pixels
+    return pixels
 
 
 def mp_line(o, d, t0, t1):
@@ -61,7 +61,7 @@ def test_erf_diff_tail_and_series():
 
 def test_erf_table_matches_mpmath():
     """The tabulated erf the particles sweep uses: within a few ulps everywhere, exact limits."""
-    from kernels.render import _cpu_math as m
+    from kernels.render.cpu import vecmath as m
 
     rng = np.random.default_rng(3)
     us = np.concatenate([rng.uniform(-6.5, 6.5, 3000), np.linspace(-6.1, 6.1, 977), [0.0, -0.0, 1 / 16, 5.999999]])

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from test_render_frame import blob_object as render_frame_blob
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, accel
-from kernels.render.synthetic import gaussian_set
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render.inputs import accel
+from kernels.render.scene.synthetic import gaussian_set
 
 TF = TransferFunction.from_colormap("viridis", 0.0, 1.0, density=2.0)
 

@@ -8,8 +8,8 @@ import pytest
 
 from kernels.lod import build_lod
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render.lights import Light, pack
-from kernels.render.synthetic import gaussian_set, grid_from_dense
+from kernels.render.scene.lights import Light, pack
+from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
 N, R, W, SPAN = 40, 12.0, 64, 40.0
 C = np.array([19.8, 19.6, 19.7])

@@ -4,9 +4,10 @@ from the tile lists gives the leaf walk's image."""
 import numpy as np
 import pytest
 
-from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, frame_setup, generate_rays
-from kernels.render import accel as accel_mod
-from kernels.render.synthetic import gaussian_set
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction, generate_rays
+from kernels.render.devices import frame_setup
+from kernels.render.inputs import accel as accel_mod
+from kernels.render.scene.synthetic import gaussian_set
 
 
 def blob(seed, n=300, spread=6.0, offset=(0.0, 0.0, 0.0)):

@@ -1,5 +1,5 @@
 """Splat mode: the Gaussian field on a lattice (kernels.lod.splat), drawn as voxels
-(kernels.render.splat_scene)."""
+(kernels.render.scene.splat)."""
 import types
 
 import numpy as np

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
-from kernels.render.synthetic import gaussian_set
+from kernels.render.scene.synthetic import gaussian_set
 from tests.references import closed_form_alpha, quadrature_pixel
 
 mpmath.mp.dps = 50
@@ -22,8 +22,8 @@ HYP = settings(max_examples=60, deadline=None, derandomize=True)
 
 
 def _k():
-    from kernels.render import _cpu
-    return _cpu
+    from kernels.render.cpu import pixels
+    return pixels
 
 
 _DEV = {}

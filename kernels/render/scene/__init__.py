@@ -1,0 +1,1 @@
+"""What to draw: the scene, camera, transfer functions, colormaps, lights, clipping, legend."""
