@@ -10,6 +10,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 COMMANDS = {
     "demo": "import the bundled sample at every LOD, print the table, render it",
     "test": "run the whole test suite (pytest arguments pass through)",
+    "compat": "the built zip in the oldest supported Blender (4.5): import, F12, save, reload",
     "build": "build the installable extension zips (one per platform)",
     "info": "list the grids of a .vdb file",
     "convert": "convert one grid to Gaussians at a LOD preset",

@@ -2,7 +2,8 @@
 
 The wheels listed in blender_manifest.toml are fetched unmodified from PyPI into wheels/, then
 Blender's own `blender_ext.py build --split-platforms` packs the zips and `validate` checks each.
-`--platform` and `--python` build a subset (the test builds linux-x64 with cp311 only).
+`--platform` and `--python` build a subset (the tests build linux-x64 for the running Python).
+cp311 wheels serve Blender 4.5-5.0, cp313 wheels 5.1 and later.
 """
 
 import argparse
@@ -73,7 +74,7 @@ def fetch_wheel(wheel: dict, dest: str) -> None:
 def stage_source(selected: list[dict], platforms: list[str], stage: str) -> None:
     """Copy the extension source with a manifest that names only the selected wheels."""
     shutil.rmtree(stage, ignore_errors=True)
-    ignore = shutil.ignore_patterns(".git", ".venv", "wheels", "dist", "build", "__pycache__",
+    ignore = shutil.ignore_patterns(".git", ".venv*", "wheels", "dist", "build", "__pycache__",
                                     ".pytest_cache", ".ruff_cache", ".hypothesis")
     shutil.copytree(ROOT, stage, ignore=ignore, symlinks=False)
     os.makedirs(os.path.join(stage, "wheels"))

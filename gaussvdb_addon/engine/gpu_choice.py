@@ -4,7 +4,9 @@ be had: always in the UI; in background mode (blender -b, the bpy module) once t
 chosen (the setting's update, a file loaded with it, the CLI) and the probe passed, by
 registering the engine class again with the flag on. A machine without EGL/GL never asks, so
 Blender never aborts there; the GPU choice then falls back to the CPU device with a warning
-(devices.chosen_device, which reads the flag from the engine it renders for)."""
+(devices.chosen_device, which reads the flag from the engine it renders for). Choosing the device
+only starts the probe: the render waits for its answer (render_init), so no property update waits
+on a child process."""
 
 import bpy
 from bpy.app.handlers import persistent
@@ -38,7 +40,9 @@ def ensure():
 
 def device_changed(settings, context):
     if settings.device == "GPU" and bpy.app.background:
-        ensure()
+        probe.start()
+        if probe.answer() is not None:
+            ensure()
     settings.id_data.update_tag()
 
 
@@ -46,17 +50,31 @@ def device_changed(settings, context):
 def _on_load(_filepath=""):
     if bpy.app.background and any(getattr(s, "gaussvdb", None) is not None
                                   and s.gaussvdb.device == "GPU" for s in bpy.data.scenes):
+        probe.start()
+
+
+@persistent
+def _before_render(scene=None, *_):
+    """A render starts (before Blender reads the engine's GPU-context flag): the GPU device's
+    probe answer is awaited here, where a render may wait."""
+    scene = scene or bpy.context.scene
+    if (bpy.app.background and scene.render.engine == engine_class().bl_idname
+            and scene.gaussvdb.device == "GPU"):
         ensure()
 
 
 def register_extra():
     if _on_load not in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.append(_on_load)
+    if _before_render not in bpy.app.handlers.render_init:
+        bpy.app.handlers.render_init.append(_before_render)
 
 
 def unregister_extra():
     if _on_load in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_on_load)
+    if _before_render in bpy.app.handlers.render_init:
+        bpy.app.handlers.render_init.remove(_before_render)
 
 
 CLASSES = ()

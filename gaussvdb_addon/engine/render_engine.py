@@ -29,7 +29,12 @@ class GaussVDBRenderEngine(bpy.types.RenderEngine):
         self.viewport = None
 
     def __del__(self):
-        viewport = getattr(self, "viewport", None)
+        # object's own lookup, not bpy's: by the time of the last __del__ Blender may have freed
+        # the engine (5.2 then raises ReferenceError on any attribute); our own one is still here
+        try:
+            viewport = object.__getattribute__(self, "viewport")
+        except (AttributeError, ReferenceError):
+            return
         if viewport is not None:
             viewport.stop()
 

@@ -75,8 +75,25 @@ def test_reference_mode_matches_the_cpu_device(gpu, cpu, name):
     assert db >= GPU_MIN_DB, f"{name}: PSNR {db:.1f} dB < {GPU_MIN_DB} dB"
     hit = want["Depth"] < 1e9
     np.testing.assert_array_equal(got["Depth"] < 1e9, hit)
-    np.testing.assert_allclose(got["Depth"][hit], want["Depth"][hit], rtol=1e-4, atol=1e-2)
+    assert_depths_agree(got["Depth"][hit], want["Depth"][hit], sc)
     np.testing.assert_allclose(got["Value"], want["Value"], atol=1e-4)
+
+
+def assert_depths_agree(got, want, sc):
+    """Depths agree to 1e-4, but for rays that graze a surface, which may differ by two steps.
+    A surface hit is the first sample whose signed distance is <= 0, refined by bisection over
+    the step before it. The GPU samples in float32, the CPU in float64 (and numba's and
+    llvmpipe's code differ with the CPU's instruction set), so a sample whose distance lies within
+    rounding of 0 can count as inside on one device only: that ray's crossing is then found in the
+    step before or after, both inside the two steps around that sample. Such rays are rare (1 of
+    356 hit pixels on one AVX-512 machine, with 0.21 of a 0.5-voxel step apart): at most 1% may."""
+    voxel = max(np.linalg.norm(ob.matrix_world[:3, :3] @ ob.grid.index_to_world[:3, :3], axis=0).max()
+                for ob in sc.objects)  # a voxel's longest world edge
+    bound = 2.0 * sc.step * voxel
+    close = np.isclose(got, want, rtol=1e-4, atol=1e-2)
+    far = np.abs(got - want)[~close]
+    assert far.size <= max(1, close.size // 100), f"{far.size} of {close.size} depths differ"
+    assert np.all(far <= bound), f"depths differ by {far.max():.3f} > two steps ({bound:.3f})"
 
 
 def test_bands_and_regions_are_pixels_of_the_whole_frame(gpu):

@@ -36,7 +36,8 @@ def test_built_zip_installs_and_toggles(tmp_path):
     sys.path.insert(0, os.path.join(ROOT, "tools"))
     import cmd_build
 
-    zips = cmd_build.build(["linux-x64"], ["cp311"], str(tmp_path / "dist"))
+    tag = f"cp{sys.version_info[0]}{sys.version_info[1]}"  # the wheels of the running Blender
+    zips = cmd_build.build(["linux-x64"], [tag], str(tmp_path / "dist"))
     assert [os.path.basename(z) for z in zips] == ["gaussvdb-0.1.0-linux_x64.zip"]
 
     env = dict(os.environ, BLENDER_USER_EXTENSIONS=str(tmp_path / "ext"),
