@@ -31,6 +31,7 @@ import warnings
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
 
 import cli_errors  # noqa: E402
+import cluster  # noqa: E402
 
 T_START = time.perf_counter()  # when the command's own code began (see started_seconds_ago)
 
@@ -159,13 +160,11 @@ def finish_timing(res):
     return res
 
 
-def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magnitude=False,
-                     level_set_band=True) -> dict:
-    """Every frame of a sequence into the add-on's disk cache (kernels.sequence.write_frame),
-    each frame converted as the add-on converts one (kernels.pipeline.convert_frame)."""
+def sequence_frames(pattern, frames, grid, vector_magnitude=False):
+    """(Pattern, the frames on disk within ``frames``, the grid: named, or the default one of the
+    first frame with one); refusals name the pattern."""
     import cli_grids
 
-    from kernels import pipeline
     from kernels import sequence as seq
 
     pat = seq.parse(os.path.abspath(pattern))
@@ -187,6 +186,17 @@ def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magn
             last = err
     if name is None:
         raise last
+    return pat, present, name
+
+
+def convert_sequence(pattern, frames, grid, lod, weights, cache_dir, vector_magnitude=False,
+                     level_set_band=True) -> dict:
+    """Every frame of a sequence into the add-on's disk cache (kernels.sequence.write_frame),
+    each frame converted as the add-on converts one (kernels.pipeline.convert_frame)."""
+    from kernels import pipeline
+    from kernels import sequence as seq
+
+    pat, present, name = sequence_frames(pattern, frames, grid, vector_magnitude)
     items, errors = [], []
     t_all = time.perf_counter()
     for n in present:
@@ -241,13 +251,14 @@ def main(argv: list[str]) -> int:
                     help="level sets: keep the whole narrow band, not only the zero-crossing shell")
     ap.add_argument("--no-error", action="store_true", help="skip the field error")
     ap.add_argument("--threads", type=cli_errors.threads, help="numba threads (0: all)")
+    cluster.add_arguments(ap)
     for k, v in DEFAULTS.items():
         kind = (cli_errors.nonnegative if k in ("tolerance", "max_error") else
                 cli_errors.on_off if isinstance(v, bool) else type(v))
         ap.add_argument("--" + k.replace("_", "-"), default=None, help=f"threshold (default {v})",
                         type=kind)
     a = ap.parse_args(argv)
-    if a.threads:
+    if a.threads and not cluster.wanted(a):
         import numba
         numba.set_num_threads(a.threads)
     th = {k: getattr(a, k) for k in DEFAULTS if getattr(a, k) is not None}
@@ -267,10 +278,18 @@ def main(argv: list[str]) -> int:
             frames = seq.parse_frames(a.frames) if a.frames else None
         except ValueError as err:
             raise cli_errors.UsageError(f"--frames: {err}", "gaussvdb convert") from None
-        res = convert_sequence(a.file, frames, a.grid, a.lod, a.weights, a.cache_dir,
-                               a.vector_magnitude, not a.no_band)
+        if cluster.wanted(a):  # one task per frame on a Dask cluster (tools/cluster.py)
+            res = cluster.convert_sequence(a.file, frames, a.grid, a.lod, a.weights, a.cache_dir,
+                                           a.vector_magnitude, not a.no_band, workers=a.workers,
+                                           scheduler=a.scheduler, cores=a.threads or 0)
+        else:
+            res = convert_sequence(a.file, frames, a.grid, a.lod, a.weights, a.cache_dir,
+                                   a.vector_magnitude, not a.no_band)
         print(json.dumps(res) if a.json else json.dumps(res, indent=2))
         return 1 if res["errors"] else 0
+    if cluster.wanted(a):
+        raise cli_errors.UsageError("--workers/--scheduler convert a sequence ('DIR/name_####.vdb' "
+                                    "--cache-dir DIR)", "gaussvdb convert")
     res = convert(a.file, a.grid, a.lod, a.weights, level_set_band=not a.no_band,
                   error=not a.no_error, out=a.out, vector_magnitude=a.vector_magnitude,
                   color_grid=a.color_grid, **th)

@@ -28,6 +28,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
 
 import cli_errors  # noqa: E402
+import cluster  # noqa: E402
 from cli_errors import InputError, UsageError  # noqa: E402
 
 VIEW = (0.35, 1.0, -0.3)  # viewing direction: from the front, a little from the side and above
@@ -85,6 +86,7 @@ def parse(argv):
                    help="render device: the CPU, or compute shaders on the GPU (reference mode; "
                         "the CPU draws what the GPU does not)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
+    cluster.add_arguments(p)
     a = p.parse_args(argv)
     a.width, a.height = a.size
     return a
@@ -246,9 +248,12 @@ def main(argv) -> int:
     if args.color_grid and (args.frames or "#" in os.path.basename(args.file)):
         raise UsageError("--color-grid colours one file, not a sequence", "gaussvdb render")
     if args.frames or "#" in os.path.basename(args.file):
-        import render_sequence
+        if cluster.wanted(args):  # one task per frame on a Dask cluster (tools/cluster.py)
+            stats = cluster.render_sequence(args)
+        else:
+            import render_sequence
 
-        stats = render_sequence.render(args, build_scene, quiet_render)
+            stats = render_sequence.render(args, build_scene, quiet_render)
         if args.json:
             print(json.dumps(stats, sort_keys=True))
         else:
@@ -256,6 +261,9 @@ def main(argv) -> int:
                 print(f"{item['out']}: frame {item['frame']}, {item['gaussians']:,} Gaussians, "
                       f"sync {item['seconds_sync']:.2f} s, render {item['seconds_render']:.2f} s")
         return 1 if stats["errors"] else 0
+    if cluster.wanted(args):
+        raise UsageError("--workers/--scheduler render a sequence ('DIR/name_####.vdb')",
+                         "gaussvdb render")
     stats = render(args)
     for msg in stats.get("warnings", ()):
         print(f"gaussvdb render: warning: {msg}", file=sys.stderr)
