@@ -140,6 +140,8 @@ def main(argv) -> int:
             print(json.dumps(stats, sort_keys=True))
         else:
             for item in stats["frames"]:
+                if "gaussians" not in item:  # a frame that failed on a cluster (said on stderr)
+                    continue
                 print(f"{item['out']}: frame {item['frame']}, {item['gaussians']:,} Gaussians, "
                       f"sync {item['seconds_sync']:.2f} s, render {item['seconds_render']:.2f} s")
         return 1 if stats["errors"] else 0
