@@ -13,9 +13,12 @@ keyed by a fingerprint of the source file so a changed file is converted again.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
+import socket
+import uuid
 import zlib
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -245,15 +248,29 @@ def cache_name(frame_path, grid, lod, options=DEFAULTS) -> str:
     return f"{stem}.{safe}.{lod}{opts}.npz"
 
 
+def temporary_name(path) -> str:
+    """A name beside ``path`` no other process uses (host, process, random part), to write to
+    and then rename over ``path``; the umask's permissions, unlike mkstemp's 0600."""
+    host = re.sub(r"[^A-Za-z0-9_-]", "_", socket.gethostname())[:32]
+    return f"{path}.{host}-{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp"
+
+
 def write_cache(path, enc: dict, meta: dict):
     """Write the encoding and its metadata (JSON) atomically (render-farm nodes may share the
     folder: a reader never sees half a file)."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     meta = {**meta, "cache_version": CACHE_VERSION}
-    tmp = f"{path}.{os.getpid()}.tmp"
-    with open(tmp, "wb") as f:
-        np.savez(f, **enc, cache_meta=np.frombuffer(json.dumps(meta).encode(), np.uint8))
-    os.replace(tmp, path)
+    # a name of its own, created exclusively: two nodes writing one frame (same pid on two
+    # hosts) never share a temporary file; the last rename wins, whole
+    tmp = temporary_name(path)
+    try:
+        with open(tmp, "xb") as f:
+            np.savez(f, **enc, cache_meta=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
 
 
 def read_cache(path, source_fingerprint: str):

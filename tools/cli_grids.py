@@ -1,8 +1,10 @@
 """Which grid of a .vdb file `render` and `convert` use, decided from the topology alone (cheap,
 before Blender starts or kernels load); when none can be used, the refusal says why per grid.
 The default is the import's (kernels.pipeline.default_grids: a Mantaflow cache gives density),
-the first of those that can be used."""
+the first of those that can be used. A sequence's grid: the first of its frames that has one."""
 from __future__ import annotations
+
+import os
 
 from cli_errors import InputError
 
@@ -60,3 +62,31 @@ def choose_grid(path, grid=None, vector_magnitude=False) -> str:
         why = "; ".join(f"{n}: {r}" for n, r in reasons.items()) or "the file holds no grids"
         raise InputError(f"no scalar grid in {path} ({why})")
     return usable[0]
+
+
+def sequence_frames(pattern, frames=None, grid=None, vector_magnitude=False):
+    """(Pattern, the frames on disk within ``frames``, the grid: named, or the default one of
+    the first frame with one) of a sequence `convert` writes into a disk cache, serially or on a
+    cluster; refusals name the pattern."""
+    from kernels import sequence as seq
+
+    pat = seq.parse(os.path.abspath(pattern))
+    if pat is None:
+        raise InputError(f"{pattern}: no frame number or #### in the file name")
+    present = pat.scan()
+    if not present:
+        raise InputError(f"no frames of {pat.text} in {pat.directory}")
+    if frames:
+        present = [n for n in present if frames[0] <= n <= frames[-1]]
+        if not present:
+            raise InputError(f"no frames of {pat.text} between {frames[0]} and {frames[-1]}")
+    name, last = None, None
+    for n in present:  # the grid: named, or the default one of the first frame with one
+        try:
+            name = choose_grid(pat.path(n), grid, vector_magnitude)
+            break
+        except (InputError, ValueError) as err:
+            last = err
+    if name is None:
+        raise last
+    return pat, present, name

@@ -31,6 +31,7 @@ import warnings
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
 
 import cli_errors  # noqa: E402
+import cluster  # noqa: E402
 
 T_START = time.perf_counter()  # when the command's own code began (see started_seconds_ago)
 
@@ -168,25 +169,7 @@ def convert_sequence(pattern, frames, grid, lod, cache_dir, options) -> dict:
     from kernels import pipeline
     from kernels import sequence as seq
 
-    pat = seq.parse(os.path.abspath(pattern))
-    if pat is None:
-        raise cli_errors.InputError(f"{pattern}: no frame number or #### in the file name")
-    present = pat.scan()
-    if not present:
-        raise cli_errors.InputError(f"no frames of {pat.text} in {pat.directory}")
-    if frames:
-        present = [n for n in present if frames[0] <= n <= frames[-1]]
-        if not present:
-            raise cli_errors.InputError(f"no frames of {pat.text} between {frames[0]} and {frames[-1]}")
-    name, last = None, None
-    for n in present:  # the grid: named, or the default one of the first frame with one
-        try:
-            name = cli_grids.choose_grid(pat.path(n), grid, options.vector_magnitude)
-            break
-        except (cli_errors.InputError, ValueError) as err:
-            last = err
-    if name is None:
-        raise last
+    pat, present, name = cli_grids.sequence_frames(pattern, frames, grid, options.vector_magnitude)
     items, errors = [], []
     t_all = time.perf_counter()
     for n in present:
@@ -242,13 +225,14 @@ def main(argv: list[str]) -> int:
                     help="level sets: keep the whole narrow band, not only the zero-crossing shell")
     ap.add_argument("--no-error", action="store_true", help="skip the field error")
     ap.add_argument("--threads", type=cli_errors.threads, help="numba threads (0: all)")
+    cluster.add_arguments(ap)
     for k, v in DEFAULTS.items():
         parse = (cli_errors.nonnegative if k in ("tolerance", "max_error") else
                  cli_errors.on_off if isinstance(v, bool) else type(v))
         ap.add_argument("--" + k.replace("_", "-"), default=None, help=f"threshold (default {v})",
                         type=parse)
     a = ap.parse_args(argv)
-    if a.threads:
+    if a.threads and not cluster.wanted(a):
         import numba
         numba.set_num_threads(a.threads)
     th = {k: getattr(a, k) for k in DEFAULTS if getattr(a, k) is not None}
@@ -271,9 +255,17 @@ def main(argv: list[str]) -> int:
             frames = seq.parse_frames(a.frames) if a.frames else None
         except ValueError as err:
             raise cli_errors.UsageError(f"--frames: {err}", "gaussvdb convert") from None
-        res = convert_sequence(a.file, frames, a.grid, a.lod, a.cache_dir, opts)
+        if cluster.wanted(a):  # one task per frame on a Dask cluster (tools/cluster.py)
+            res = cluster.convert_sequence(a.file, frames, a.grid, a.lod, a.cache_dir, opts,
+                                           workers=a.workers, scheduler=a.scheduler,
+                                           cores=a.threads or 0)
+        else:
+            res = convert_sequence(a.file, frames, a.grid, a.lod, a.cache_dir, opts)
         print(json.dumps(res) if a.json else json.dumps(res, indent=2))
         return 1 if res["errors"] else 0
+    if cluster.wanted(a):
+        raise cli_errors.UsageError("--workers/--scheduler convert a sequence ('DIR/name_####.vdb' "
+                                    "--cache-dir DIR)", "gaussvdb convert")
     res = convert(a.file, a.grid, opts, out=a.out)
     res = finish_timing(res)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))

@@ -25,6 +25,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # the sibling tools modules
 
 import cli_errors  # noqa: E402
+import cluster  # noqa: E402
 import render_sequence  # noqa: E402
 from cli_errors import InputError, UsageError  # noqa: E402
 from render_setup import build_scene, check_format, convert_options, quiet_render  # noqa: E402, F401
@@ -84,6 +85,7 @@ def parse(argv):
                    help="render device: the CPU, or compute shaders on the GPU (reference mode; "
                         "the CPU draws what the GPU does not)")
     p.add_argument("--json", action="store_true", help="print one JSON line")
+    cluster.add_arguments(p)
     a = p.parse_args(argv)
     a.width, a.height = a.size
     return a
@@ -130,14 +132,22 @@ def main(argv) -> int:
     if args.color_grid and (args.frames or "#" in os.path.basename(args.file)):
         raise UsageError("--color-grid colours one file, not a sequence", "gaussvdb render")
     if args.frames or "#" in os.path.basename(args.file):
-        stats = render_sequence.render(args)
+        if cluster.wanted(args):  # one task per frame on a Dask cluster (tools/cluster.py)
+            stats = cluster.render_sequence(args)
+        else:
+            stats = render_sequence.render(args)
         if args.json:
             print(json.dumps(stats, sort_keys=True))
         else:
             for item in stats["frames"]:
+                if "gaussians" not in item:  # a frame that failed on a cluster (said on stderr)
+                    continue
                 print(f"{item['out']}: frame {item['frame']}, {item['gaussians']:,} Gaussians, "
                       f"sync {item['seconds_sync']:.2f} s, render {item['seconds_render']:.2f} s")
         return 1 if stats["errors"] else 0
+    if cluster.wanted(args):
+        raise UsageError("--workers/--scheduler render a sequence ('DIR/name_####.vdb')",
+                         "gaussvdb render")
     stats = render(args)
     for msg in stats.get("warnings", ()):
         print(f"gaussvdb render: warning: {msg}", file=sys.stderr)

@@ -80,7 +80,9 @@ def sequence_box(obj):
     return wc[:, :3].min(0), wc[:, :3].max(0)
 
 
-def render(args) -> dict:
+def prepare(args) -> dict:
+    """Blender started, the sequence imported and the scene built as `render` draws it: what
+    rendering any one of its frames needs (a cluster worker prepares it once for its frames)."""
     from blender_session import addon_module, start
 
     pat, frames, inside = frames_of(args)
@@ -105,17 +107,32 @@ def render(args) -> dict:
     vol.frame_duration = max(frames[-1], inside[-1]) - inside[0] + 1
     vol.sequence_mode = "CLIP"
     scene = build_scene(bpy, objs, args, box=sequence_box)
+    return {"pattern": pat, "frames": frames, "grid": grid, "scene": scene,
+            "image_file": image_file, "seconds_import": seconds_import}
+
+
+def render_frame(prepared, frame, out):
+    """Scene frame ``frame`` of a prepared sequence drawn to ``out``: (per-frame figures, the
+    render's stats: its warnings, errors and value_range)."""
+    scene = prepared["scene"]
+    scene.frame_set(frame)
+    t1 = time.perf_counter()
+    stats = quiet_render(prepared["image_file"], scene, out)
+    item = {"frame": frame, "out": out, "seconds": time.perf_counter() - t1,
+            "seconds_sync": stats["seconds_sync"], "seconds_render": stats["seconds_render"],
+            "gaussians": stats["gaussians"]}
+    return item, stats
+
+
+def render(args) -> dict:
+    prepared = prepare(args)
+    pat, frames, scene = prepared["pattern"], prepared["frames"], prepared["scene"]
     per_frame, warnings, errors = [], [], []
     t_all = time.perf_counter()
     for f in frames:
-        scene.frame_set(f)
         out = os.path.abspath(out_path(args.out, f))
         os.makedirs(os.path.dirname(out), exist_ok=True)
-        t1 = time.perf_counter()
-        stats = quiet_render(image_file, scene, out)
-        item = {"frame": f, "out": out, "seconds": time.perf_counter() - t1,
-                "seconds_sync": stats["seconds_sync"], "seconds_render": stats["seconds_render"],
-                "gaussians": stats["gaussians"]}
+        item, stats = render_frame(prepared, f, out)
         for msg in stats.get("warnings", ()):
             if msg not in warnings:
                 warnings.append(msg)
@@ -126,9 +143,10 @@ def render(args) -> dict:
             print(f"gaussvdb render: error: {cli_errors.one_line(msg)}", file=sys.stderr)
         per_frame.append(item)
     total = time.perf_counter() - t_all
-    return {"pattern": pat.path(0).replace(pat.name(0), pat.text), "grid": grid, "lod": args.lod,
-            "mode": scene.gaussvdb.mode.lower(), "width": args.width, "height": args.height,
-            "colormap": args.colormap, "seconds_import": seconds_import, "seconds_total": total,
+    return {"pattern": pat.path(0).replace(pat.name(0), pat.text), "grid": prepared["grid"],
+            "lod": args.lod, "mode": scene.gaussvdb.mode.lower(), "width": args.width,
+            "height": args.height, "colormap": args.colormap,
+            "seconds_import": prepared["seconds_import"], "seconds_total": total,
             "seconds_per_frame": total / len(frames), "frames": per_frame,
             "value_range": stats.get("value_range"), "warnings": warnings, "errors": errors,
             "sequence": True}
