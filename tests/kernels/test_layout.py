@@ -8,14 +8,14 @@ import re
 import numpy as np
 
 from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+from kernels.render.gpu import assembly, tables_color, tables_gauss, tables_tiles
 from kernels.render.gpu import tables as gpu_layout
-from kernels.render.gpu import tables_color, tables_gauss, tables_tiles
 from kernels.render.inputs import gauss_pack, layout
 from kernels.render.inputs.packing import Scratch, pack_settings
 from kernels.render.scene import lights
 from kernels.render.scene.synthetic import gaussian_set
 
-GLSL = sorted(glob.glob(os.path.join(os.path.dirname(layout.__file__), "glsl", "*.glsl")))
+GLSL = sorted(glob.glob(os.path.join(assembly.GLSL_DIR, "*.glsl")))
 NUMBER = re.compile(r"(?<![\w.])(\d+\.\d*(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+|\.\d+(?:[eE][-+]?\d+)?|\d+)u?(?![\w.])")
 
 

@@ -82,7 +82,7 @@ def test_every_gpu_mode_has_its_tables_and_shader_files():
     on_gpu = {m.name.lower() for m in modes.drawn_modes() if modes.spec(m).gpu is not None}
     assert set(gpu_layout.MODE_TABLES) == on_gpu
     assert set(modes.gpu_modes()) == on_gpu | {"splat"}
-    glsl = os.path.join(ROOT, "kernels", "render", "glsl")
+    glsl = os.path.join(ROOT, "kernels", "render", "gpu", "glsl")
     for m in modes.drawn_modes():
         shader = modes.spec(m).gpu
         assert shader is None or all(os.path.isfile(os.path.join(glsl, f)) for f in shader.glsl)
