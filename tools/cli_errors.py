@@ -75,6 +75,14 @@ def clip_box(text: str) -> tuple:
     return v[:3], v[3:]
 
 
+def value_range(text: str) -> tuple:
+    """'min,max' -> a transfer function's value range: two finite numbers, min < max."""
+    lo, hi = _floats(text, 2, "MIN,MAX")
+    if not lo < hi:
+        raise argparse.ArgumentTypeError(f"needs MIN < MAX, not {text!r}")
+    return lo, hi
+
+
 def _floats(text, n, shape):
     try:
         v = tuple(float(x) for x in text.split(","))

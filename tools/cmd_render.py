@@ -2,13 +2,15 @@
 [--mode particles|field|paper|reference] [--colormap NAME] [--size WxH] [--out IMG.png|.exr]
 [--threads N] [--density D] [--log-scale] [--legend] [--clip-plane P,N] [--clip-box LO,HI]
 [--view DX,DY,DZ] [--up X,Y,Z] [--level-set surface|shell] [--shading emission|lit] [--shadows] [--color-grid NAME
-[--color-map NAME]] [--device cpu|gpu] [--json]`
+[--color-map NAME]] [--range MIN,MAX] [--tolerance T] [--device cpu|gpu] [--json]`
 
-Imports one grid through the importer, frames a camera on its world box, sets the Standard view
-transform (colormaps come out exact), renders through the GAUSSVDB engine
-(``bpy.ops.render.render(write_still=True)``) and writes the image. Prints a summary, or with
---json one JSON line: seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
-threads, lod, grid, colormap, out, warnings, device (the one that drew: GPU falls back to CPU
+Imports one grid through the importer, frames a camera on its active voxels (the same view for
+every LOD), sets the Standard view transform (colormaps come out exact), renders through the
+GAUSSVDB engine (``bpy.ops.render.render(write_still=True)``) and writes the image. --range fixes
+the transfer function's value range (the same colours for every file of a batch). Prints a
+summary, or with --json one JSON document and nothing else on stdout (Blender's own lines go to
+stderr): seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
+threads, lod, grid, colormap, value_range, out, warnings, device (the one that drew: GPU falls back to CPU
 with a warning where no GPU context can be had) and gpu (the GPU's name, or null). Warnings
 (a log scale over values <= 0) go to stderr.
 Options and the grid are checked before Blender starts; a refusal or a failed render is one line
@@ -17,6 +19,7 @@ frame (tools/render_sequence.py).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
@@ -28,7 +31,15 @@ import cli_errors  # noqa: E402
 import cluster  # noqa: E402
 import render_sequence  # noqa: E402
 from cli_errors import InputError, UsageError  # noqa: E402
-from render_setup import build_scene, check_format, convert_options, quiet_render  # noqa: E402, F401
+from render_setup import (  # noqa: E402, F401
+    build_scene,
+    check_format,
+    convert_options,
+    index_box_world,
+    quiet_render,
+    stdout_to_stderr,
+    voxel_box,
+)
 
 VIEW = (0.35, 1.0, -0.3)  # viewing direction: from the front, a little from the side and above
 
@@ -53,7 +64,15 @@ def parse(argv):
     p.add_argument("--out", default="render.png", help=".png or .exr (.jpg, .tif also work)")
     p.add_argument("--threads", type=cli_errors.threads, default=0, help="CPU threads (0: all)")
     p.add_argument("--density", type=cli_errors.nonnegative, default=None,
-                   help="extinction per world unit (default: 10 per voxel-box diagonal, scaled to the grid)")
+                   help="extinction per world unit (default: 10 over the diagonal of the framed "
+                        "box, the same for every LOD)")
+    p.add_argument("--range", dest="value_range", type=cli_errors.value_range, default=None,
+                   metavar="MIN,MAX", help="the transfer function's value range (default: the "
+                   "active voxels' range; a sequence's over its frames): the same colours for every "
+                   "file and frame of a batch (a log scale needs MIN > 0; write --range=-1,1 for a "
+                   "negative MIN)")
+    p.add_argument("--tolerance", type=cli_errors.nonnegative, default=None, metavar="T",
+                   help=f"--lod adaptive: the field NRMSE to meet (default {lod_names.DEFAULT_TOLERANCE})")
     p.add_argument("--weights", default=WEIGHTS[0], choices=WEIGHTS)
     p.add_argument("--transparent", action="store_true", help="transparent film (alpha kept)")
     p.add_argument("--log-scale", action="store_true", help="log10 transfer function")
@@ -84,10 +103,17 @@ def parse(argv):
     p.add_argument("--device", default="cpu", choices=("cpu", "gpu"),
                    help="render device: the CPU, or compute shaders on the GPU (reference mode; "
                         "the CPU draws what the GPU does not)")
-    p.add_argument("--json", action="store_true", help="print one JSON line")
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout and "
+                   "nothing else (Blender's lines go to stderr)")
     cluster.add_arguments(p)
     a = p.parse_args(argv)
     a.width, a.height = a.size
+    if a.tolerance is not None and a.lod not in lod_names.TOLERANCE_PRESETS:
+        raise UsageError(f"--tolerance applies to --lod {', '.join(lod_names.TOLERANCE_PRESETS)}, "
+                         f"not {a.lod}", p.prog)
+    if a.value_range and a.log_scale and a.value_range[0] <= 0:
+        raise UsageError(f"--range {a.value_range[0]:g},{a.value_range[1]:g}: a log scale needs "
+                         "MIN > 0", p.prog)
     return a
 
 
@@ -119,7 +145,8 @@ def render(args) -> dict:
     except importer.VDBImportError as err:
         raise InputError(f"{args.file}: {err}") from err
     seconds_import = time.perf_counter() - t0
-    scene = build_scene(bpy, objs, args)
+    lo, hi = voxel_box(args.file, grid)
+    scene = build_scene(bpy, objs, args, box=lambda obj: index_box_world(obj, lo, hi))
     stats = quiet_render(image_file, scene, os.path.abspath(args.out))
     stats.update(seconds_import=seconds_import, lod=args.lod, grid=grid, colormap=args.colormap,
                  color_grid=args.color_grid,
@@ -135,7 +162,8 @@ def main(argv) -> int:
         if cluster.wanted(args):  # one task per frame on a Dask cluster (tools/cluster.py)
             stats = cluster.render_sequence(args)
         else:
-            stats = render_sequence.render(args)
+            with stdout_to_stderr() if args.json else contextlib.nullcontext():
+                stats = render_sequence.render(args)
         if args.json:
             print(json.dumps(stats, sort_keys=True))
         else:
@@ -148,7 +176,8 @@ def main(argv) -> int:
     if cluster.wanted(args):
         raise UsageError("--workers/--scheduler render a sequence ('DIR/name_####.vdb')",
                          "gaussvdb render")
-    stats = render(args)
+    with stdout_to_stderr() if args.json else contextlib.nullcontext():
+        stats = render(args)
     for msg in stats.get("warnings", ()):
         print(f"gaussvdb render: warning: {msg}", file=sys.stderr)
     if args.json:

@@ -17,7 +17,7 @@ import time
 
 import cli_errors
 from cli_errors import InputError, UsageError
-from render_setup import build_scene, check_format, convert_options, quiet_render
+from render_setup import build_scene, check_format, convert_options, index_box_world, quiet_render
 
 
 def frames_of(args):
@@ -71,13 +71,7 @@ def choose_grid(pat, inside, args):
 
 def sequence_box(obj):
     """World box of every frame (the stored union of the frames' leaf boxes)."""
-    import numpy as np
-
-    lo, hi = np.array(obj.gaussvdb.leaf_box_min), np.array(obj.gaussvdb.leaf_box_max)
-    corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
-    wc = corners @ np.array(obj.matrix_world, np.float64).T
-    return wc[:, :3].min(0), wc[:, :3].max(0)
+    return index_box_world(obj, obj.gaussvdb.leaf_box_min, obj.gaussvdb.leaf_box_max)
 
 
 def prepare(args) -> dict:

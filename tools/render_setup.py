@@ -1,6 +1,10 @@
 """The Blender side shared by `./gaussvdb render` of one file (cmd_render.py) and of a sequence
 (render_sequence.py): the import's ConvertOptions from the command line, the camera framing
 the grid and the engine settings, and the render to a file with its figures returned.
+
+The command line frames a box that no LOD changes (a file: its grid's active voxels; a sequence:
+every frame's leaves), and its default density is relative to that box, so every LOD of a file
+renders the same view.
 """
 from __future__ import annotations
 
@@ -17,11 +21,14 @@ from cli_errors import UsageError
 def convert_options(args, grid):
     """The ConvertOptions of the command line's import of ``grid`` (no field error: a render
     does not show it)."""
+    from kernels import lod_names
     from kernels.convert_options import ConvertOptions
 
+    tolerance = getattr(args, "tolerance", None)
     return ConvertOptions(grids=(grid,), lods=(args.lod,), weights=args.weights,
                           vector_magnitude=args.vector_magnitude, compute_error=False,
-                          color_grid=getattr(args, "color_grid", None))
+                          color_grid=getattr(args, "color_grid", None),
+                          tolerance=lod_names.DEFAULT_TOLERANCE if tolerance is None else tolerance)
 
 
 def world_box(obj):
@@ -33,9 +40,33 @@ def world_box(obj):
     return wc[:, :3].min(0), wc[:, :3].max(0)
 
 
+def voxel_box(path, grid):
+    """Index-space box (voxel corners) of ``grid``'s active voxels in ``path``, from the topology:
+    what the camera frames, whatever LOD is drawn (a LOD's Gaussians span another box)."""
+    import numpy as np
+
+    from kernels.vdb import read_topology
+
+    g = next(g for g in read_topology(path, [grid]).grids if g.name == grid)
+    return np.asarray(g.bbox_min, np.float64) - 0.5, np.asarray(g.bbox_max, np.float64) + 0.5
+
+
+def index_box_world(obj, lo, hi):
+    """World box of the index-space box lo..hi of ``obj`` (its matrix_world is the grid's
+    index-to-world transform)."""
+    import numpy as np
+
+    corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    wc = corners @ np.array(obj.matrix_world, np.float64).T
+    return wc[:, :3].min(0), wc[:, :3].max(0)
+
+
 def build_scene(bpy, objs, args, box=None):
     """Camera framing the objects' world box (``box(obj)``, default their bounds), engine
-    settings; returns the scene."""
+    settings; returns the scene. Given a ``box``, the default density (10, per object size) is
+    made per world unit over that box's diagonal: the engine's object size is the drawn LOD's box,
+    which would give each LOD another opacity."""
     import mathutils
     import numpy as np
 
@@ -70,8 +101,13 @@ def build_scene(bpy, objs, args, box=None):
     s.log_scale = bool(args.log_scale)
     if args.threads:
         r.threads_mode, r.threads = "FIXED", args.threads
+    if getattr(args, "value_range", None):  # --range: the same colours for every file and frame
+        s.auto_range = False
+        s.value_min, s.value_max = args.value_range
     if args.density is not None:
         s.density_unit, s.density = "WORLD", args.density
+    elif box is not None:  # about 10 optical-depth units across the framed box, for every LOD
+        s.density_unit, s.density = "WORLD", s.density / float(np.linalg.norm(hi - lo))
     # else the default: density 10 per object size, about 10 optical-depth units across the box
     if args.shadows:  # the headlight casts no shadows: a strength-1 sun, mostly from above
         sun = bpy.data.objects.new("GaussVDB Sun", bpy.data.lights.new("GaussVDB Sun", "SUN"))
@@ -113,6 +149,27 @@ def clip_collection(bpy, scene, args):
         e.scale = [0.5 * (b - a) for a, b in zip(lo, hi)]
         coll.objects.link(e)
     return coll
+
+
+@contextlib.contextmanager
+def stdout_to_stderr():
+    """Everything written to stdout inside goes to stderr, Blender's C code (its "Saved: '...'"
+    line) included: file descriptor 1 itself is pointed at 2, then restored, so that --json
+    leaves stdout to one JSON document."""
+    import ctypes
+
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    libc.fflush(None)
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        libc.fflush(None)  # C stdio buffers a pipe: what Blender printed leaves before fd 1 returns
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def check_format(image_file, out):

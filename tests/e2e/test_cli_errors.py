@@ -109,6 +109,12 @@ CASES = [
     (["render", S, "--clip-plane", "1,2,3,0,0,0"], 2, ["--clip-plane", "normal"], True),
     (["render", S, "--clip-box", "0,0,0,1,-1,1"], 2, ["--clip-box", "y0 < y1"], True),
     (["render", S, "--bogus"], 2, ["--bogus"], True),
+    (["render", S, "--range", "1"], 2, ["--range", "2 finite numbers"], True),
+    (["render", S, "--range", "2,1"], 2, ["--range", "MIN < MAX"], True),
+    (["render", S, "--range", "0,inf"], 2, ["--range", "finite"], True),
+    (["render", S, "--range=-1,1", "--log-scale"], 2, ["--range", "log scale", "MIN > 0"], True),
+    (["render", S, "--tolerance", "0.1"], 2, ["--tolerance", "adaptive", "medium"], True),
+    (["render", S, "--lod", "adaptive", "--tolerance", "-1"], 2, ["--tolerance", "-1"], True),
     (["render"], 2, ["file"], True),
     (["render", S, "--out", "{out}/x.bmp"], 2, ["--out", "x.bmp", ".bmp", ".png"], False),
     # render: sequences
