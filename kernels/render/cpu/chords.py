@@ -244,9 +244,9 @@ def sweep_start(mode, qs, fs, cb, rd, obj_step):
 
 
 @njit(**_hot, inline="always")
-def chord_of(mx, my, mz, ix, iy, iz, ox, oy, oz, dx, dy, dz, k2, tn, tf):
+def chord_of(mx, my, mz, ix, iy, iz, ox, oy, oz, dx, dy, dz, k2, t_near, t_far):
     """The exact ray/support test of a Gaussian centred at m with 1/sigma i (object-index-space
-    ray), without branches: s, e, ts, aa, qq, ra (chord clipped to the ray's [tn, tf], closest
+    ray), without branches: s, e, ts, aa, qq, ra (chord clipped to the ray's [t_near, t_far], closest
     approach, |d'|^2, its squared distance, 1 / |d'|); a miss has s >= e. One division and two
     roots."""
     wx, wy, wz = (ox - mx) * ix, (oy - my) * iy, (oz - mz) * iz
@@ -259,15 +259,15 @@ def chord_of(mx, my, mz, ix, iy, iz, ox, oy, oz, dx, dy, dz, k2, tn, tf):
     qq = px * px + py * py + pz * pz
     ra = math.sqrt(ia)
     hw = math.sqrt(max(k2 - qq, 0.0)) * ra
-    s = max(ts - hw, tn) if qq < k2 else INF
-    return s, min(ts + hw, tf), ts, aa, qq, ra
+    s = max(ts - hw, t_near) if qq < k2 else INF
+    return s, min(ts + hw, t_far), ts, aa, qq, ra
 
 
 @njit(**_hot, inline="always")
-def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf):
+def chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, t_near, t_far):
     """chord_of for Gaussian g's record in g_rec."""
     return chord_of(g_rec[g, REC_MU], g_rec[g, REC_MU + 1], g_rec[g, REC_MU + 2], g_rec[g, REC_INV],
-                    g_rec[g, REC_INV + 1], g_rec[g, REC_INV + 2], ox, oy, oz, dx, dy, dz, k2, tn, tf)
+                    g_rec[g, REC_INV + 1], g_rec[g, REC_INV + 2], ox, oy, oz, dx, dy, dz, k2, t_near, t_far)
 
 
 @njit(**_hot, inline="always")
@@ -293,10 +293,10 @@ def add_hit(H, hid, ev_t, ev_k, ev_h, q0, nq, nh, g, s, e, ts, aa, qq, ra, pk):
 
 
 @njit(**_hot, inline="always")
-def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf, H, hid, ev_t, ev_k, ev_h, qs):
+def test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, t_near, t_far, H, hid, ev_t, ev_k, ev_h, qs):
     """Gaussian g's test (chord); a hit gets a record in H and an entry event. Returns OVERFLOW
     when H is full."""
-    s, e, ts, aa, qq, ra = chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tn, tf)
+    s, e, ts, aa, qq, ra = chord(g, ox, oy, oz, dx, dy, dz, g_rec, k2, t_near, t_far)
     if not e > s:
         return 0
     pk = peak(g, g_rec, qq, k2)

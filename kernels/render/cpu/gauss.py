@@ -347,9 +347,9 @@ def sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
 
 
 @njit(**_hot)
-def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max):
+def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max):
     """One ray, particles or field, over the n leaf cells visited, in scr.srt order (the chords
-    clipped to the ray's [tn, tf] and their object's clip interval scr.rclip[ob]). Returns 0, or
+    clipped to the ray's [t_near, t_far] and their object's clip interval scr.rclip[ob]). Returns 0, or
     OVERFLOW when more hits than hits.rec's rows are needed (the caller grows and retries)."""
     ro, rd, rclip, lastc, qs = scr.ro, scr.rd, scr.rclip, scr.lastc, scr.qs
     H, hid, ev_t, ev_k, ev_h = hits.rec, hits.hid, hits.ev_t, hits.ev_k, hits.ev_h
@@ -367,7 +367,7 @@ def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, ta
         cid = scr.iv_cell[iv]
         ox, oy, oz = ro[ob, 0], ro[ob, 1], ro[ob, 2]
         dx, dy, dz = rd[ob, 0], rd[ob, 1], rd[ob, 2]
-        tno, tfo = max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1])
+        t_near_ob, t_far_ob = max(t_near, rclip[ob, 0]), min(t_far, rclip[ob, 1])
         ox32 = np.float32(ox - obj_ref[ob, 0])
         oy32 = np.float32(oy - obj_ref[ob, 1])
         oz32 = np.float32(oz - obj_ref[ob, 2])
@@ -400,7 +400,7 @@ def trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, ta
                 czp = (g_sph[g, 0] - ox32) * dy32 - (g_sph[g, 1] - oy32) * dx32
                 if cxp * cxp + cyp * cyp + czp * czp > g_sph[g, 3] * dd32:
                     continue
-            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, tno, tfo, H, hid, ev_t, ev_k, ev_h,
+            if test_one(g, ox, oy, oz, dx, dy, dz, g_rec, k2, t_near_ob, t_far_ob, H, hid, ev_t, ev_k, ev_h,
                         qs) != 0:
                 return OVERFLOW
         lastc[w, 0] = cx
@@ -417,7 +417,7 @@ NB = 32  # candidates tested per block (trace_tiles)
 
 
 @njit(**_hot, inline="always")
-def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
+def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, t_near, t_far, blk, rclip):
     """The tests (chord) of candidates cand[:nc] into blk[0:6, c] = s, e, ts, aa, qq, ra (the peak
     is taken for hits only, as they are queued), apart from the queue insertion: no branch then
     waits on a candidate's division and roots. One object: the candidates' records are gathered
@@ -428,26 +428,26 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, tn, tf, blk, rclip):
             for k in range(6):  # centre and 1/sigma (REC_INV = REC_MU + 3)
                 blk[8 + k, c] = g_rec[cand[c], REC_MU + k]
         ox, oy, oz, dx, dy, dz = ro[0, 0], ro[0, 1], ro[0, 2], rd[0, 0], rd[0, 1], rd[0, 2]
-        tno, tfo = max(tn, rclip[0, 0]), min(tf, rclip[0, 1])
+        t_near_ob, t_far_ob = max(t_near, rclip[0, 0]), min(t_far, rclip[0, 1])
         for c in range(nc):
             (blk[0, c], blk[1, c], blk[2, c], blk[3, c], blk[4, c],
              blk[5, c]) = chord_of(blk[8, c], blk[9, c], blk[10, c], blk[11, c], blk[12, c],
-                                   blk[13, c], ox, oy, oz, dx, dy, dz, k2, tno, tfo)
+                                   blk[13, c], ox, oy, oz, dx, dy, dz, k2, t_near_ob, t_far_ob)
         return
     for c in range(nc):
         g = cand[c]
         ob = g_obj[g]
         (blk[0, c], blk[1, c], blk[2, c], blk[3, c], blk[4, c],
          blk[5, c]) = chord(g, ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
-                            g_rec, k2, max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]))
+                            g_rec, k2, max(t_near, rclip[ob, 0]), min(t_far, rclip[ob, 1]))
 
 
 @njit(**_hot)
-def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max):
+def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max):
     """One ray (pixel i, j), particles or field, over its screen tile's list accel.t_items[t0:t1]
     (ordered by the lower bound of each support's entry, gauss.rec[g, REC_LB]: see _cpu_tiles), in blocks
     of NB candidates (the entries with the pixel's mask bit), the chords clipped to the ray's
-    [tn, tf]. Returns 0 or OVERFLOW."""
+    [t_near, t_far]. Returns 0 or OVERFLOW."""
     qs, fs, cand, blk = scr.qs, scr.fs, scr.cand, scr.blk
     H, hid, ev_t, ev_k, ev_h = hits.rec, hits.hid, hits.ev_t, hits.ev_k, hits.ev_h
     t_items, t_mask, g_rec = accel.t_items, accel.t_mask, gauss.rec
@@ -470,7 +470,7 @@ def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2,
             swept = qs[NH]
             if sweep(mode, lbg, st, gauss, objs, xfer, scr, hits, tau_max):
                 return 0
-        test_block(cand, nc, scr.ro, scr.rd, g_rec, gauss.obj, k2, tn, tf, blk, scr.rclip)
+        test_block(cand, nc, scr.ro, scr.rd, g_rec, gauss.obj, k2, t_near, t_far, blk, scr.rclip)
         nh = qs[NH]
         nq = qs[NQ]
         q0 = qs[QH]

@@ -169,10 +169,10 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
 
 
 @njit(**_hot)
-def trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max):
+def trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(scr.iv_ta, scr.srt, n)  # by entry time (one object: already in order)
-    return trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max)
+    return trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max)
 
 
 @njit(**_jit)
@@ -250,13 +250,13 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             nrm = math.sqrt(dcx * dcx + dcy * dcy + dcz * dcz)
             dwx, dwy, dwz = dcx / nrm, dcy / nrm, dcz / nrm
             owx, owy, owz = cam[CAM_POS], cam[CAM_POS + 1], cam[CAM_POS + 2]
-            tn, tf = clip0 * nrm, clip1 * nrm  # the view-axis distances along this ray
+            t_near, t_far = clip0 * nrm, clip1 * nrm  # the view-axis distances along this ray
         else:
             dwx, dwy, dwz = -cam[CAM_ROT + 2], -cam[CAM_ROT + 5], -cam[CAM_ROT + 8]
             owx = cam[CAM_POS] + px * cam[CAM_ROT] + py * cam[CAM_ROT + 1]
             owy = cam[CAM_POS + 1] + px * cam[CAM_ROT + 3] + py * cam[CAM_ROT + 4]
             owz = cam[CAM_POS + 2] + px * cam[CAM_ROT + 6] + py * cam[CAM_ROT + 7]
-            tn, tf = clip0, clip1
+            t_near, t_far = clip0, clip1
         n = t_start[tl + 1] - t_start[tl] if tiled else 0
         walk = not tiled
         for ob in range(n_obj):
@@ -271,15 +271,15 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             rd[ob, 0], rd[ob, 1], rd[ob, 2] = dx, dy, dz
             rclip[ob, 0], rclip[ob, 1] = clip_interval(objs.clip[ob], owx, owy, owz, dwx, dwy, dwz)
             if walk:
-                n = walk_object(ox, oy, oz, dx, dy, dz, max(tn, rclip[ob, 0]),
-                                min(tf, rclip[ob, 1]), accel.node_min[ob], accel.node_dims[ob],
+                n = walk_object(ox, oy, oz, dx, dy, dz, max(t_near, rclip[ob, 0]),
+                                min(t_far, rclip[ob, 1]), accel.node_min[ob], accel.node_dims[ob],
                                 accel.node_off[ob], accel.node_table, accel.node_cells,
                                 accel.node_box, accel.cell_skip, ob, scr.iv_ta, scr.iv_tb, scr.iv_obj, scr.iv_cell,
                                 n, accel.max_walk, 1)
         for w in range(n_obj, accel.walk_obj.shape[0] if walk else 0):  # the coarse levels' grids
             ob = accel.walk_obj[w]
             n = walk_object(ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
-                            max(tn, rclip[ob, 0]), min(tf, rclip[ob, 1]), accel.node_min[w],
+                            max(t_near, rclip[ob, 0]), min(t_far, rclip[ob, 1]), accel.node_min[w],
                             accel.node_dims[w], accel.node_off[w], accel.node_table,
                             accel.node_cells, accel.node_box, accel.cell_skip, w, scr.iv_ta, scr.iv_tb, scr.iv_obj,
                             scr.iv_cell, n, accel.max_walk, accel.walk_scale[w])
@@ -307,9 +307,9 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
         else:
             if tiled:
                 rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], gauss, objs, accel,
-                                 xfer, scr, hits, k2, tn, tf, tau_max)
+                                 xfer, scr, hits, k2, t_near, t_far, tau_max)
             else:
-                rc = trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, tn, tf, tau_max)
+                rc = trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max)
             if rc == OVERFLOW:
                 return p
         if st[HIT] == HIT_NORMAL:

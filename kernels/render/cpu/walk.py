@@ -49,10 +49,10 @@ def dda_axis(o, d, t, size, lo, hi):
 
 
 @njit(**_hot)
-def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, node_cells,
+def walk_object(ox, oy, oz, dx, dy, dz, t_near, t_far, nmin, ndims, noff, node_table, node_cells,
                 node_box, cell_skip, obj, iv_ta, iv_tb, iv_obj, iv_cell, n, cap, scale):
     """Hierarchical DDA (nodes of 128^3, then leaves of 8^3, integer cell indices; both ``scale``
-    times larger for a grid of coarse cells) in q-space (q = index + 0.5) over the ray's [tn, tf];
+    times larger for a grid of coarse cells) in q-space (q = index + 0.5) over the ray's [t_near, t_far];
     appends the non-empty, non-transparent cell intervals front to back, tagged ``obj``. Inside a
     node the leaf DDA runs only over the box of its drawn cells (node_box, packing.node_boxes):
     most of a sparse node is empty, and stepping through it cost more than the samples."""
@@ -63,7 +63,7 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
     qx, qy, qz = ox + 0.5, oy + 0.5, oz + 0.5
     t0, t1 = slab(qx, qy, qz, dx, dy, dz, nmin[0] * node, nmin[1] * node, nmin[2] * node,
                   (nmin[0] + ndims[0]) * node, (nmin[1] + ndims[1]) * node,
-                  (nmin[2] + ndims[2]) * node, tn, tf)
+                  (nmin[2] + ndims[2]) * node, t_near, t_far)
     if not t0 < t1:
         return n
     t = t0
@@ -71,16 +71,16 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
     cy, sy, my, ey = dda_axis(qy, dy, t, node, nmin[1], nmin[1] + ndims[1])
     cz, sz, mz, ez = dda_axis(qz, dz, t, node, nmin[2], nmin[2] + ndims[2])
     while True:
-        tn = min(mx, my, mz, t1)
-        if tn > t:
+        t_near = min(mx, my, mz, t1)
+        if t_near > t:
             nid = node_table[noff + ((cx - nmin[0]) * ndims[1] + (cy - nmin[1])) * ndims[2] + (cz - nmin[2])]
             if nid >= 0 and node_box[nid, 0] < node_box[nid, 3]:
-                # leaf-level DDA over the node's drawn cells [lo, hi) within [t, tn]
+                # leaf-level DDA over the node's drawn cells [lo, hi) within [t, t_near]
                 bx, by, bz = cx * NODE_LEAVES, cy * NODE_LEAVES, cz * NODE_LEAVES
                 x0, y0, z0 = bx + node_box[nid, 0], by + node_box[nid, 1], bz + node_box[nid, 2]
                 x1, y1, z1 = bx + node_box[nid, 3], by + node_box[nid, 4], bz + node_box[nid, 5]
                 u, ue = slab(qx, qy, qz, dx, dy, dz, x0 * leaf, y0 * leaf, z0 * leaf, x1 * leaf,
-                             y1 * leaf, z1 * leaf, t, tn)
+                             y1 * leaf, z1 * leaf, t, t_near)
                 if u < ue:
                     lx, lsx, lmx, lex = dda_axis(qx, dx, u, leaf, x0, x1)
                     ly, lsy, lmy, ley = dda_axis(qy, dy, u, leaf, y0, y1)
@@ -114,7 +114,7 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
                                 break
                         if un > u:
                             u = un
-        if tn >= t1:
+        if t_near >= t1:
             break
         if mx <= my and mx <= mz:
             cx += sx
@@ -131,8 +131,8 @@ def walk_object(ox, oy, oz, dx, dy, dz, tn, tf, nmin, ndims, noff, node_table, n
             mz += ez
             if cz < nmin[2] or cz >= nmin[2] + ndims[2]:
                 break
-        if tn > t:
-            t = tn
+        if t_near > t:
+            t = t_near
     return n
 
 
