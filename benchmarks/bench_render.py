@@ -92,7 +92,7 @@ def gpu_rows(cases, a):
     """The GPU device against the CPU device, per file, mode and size (see the docstring)."""
     from blender_session import addon_module, start
 
-    from kernels.render.modes import gpu_modes
+    from kernels.render.devices.modes import gpu_modes
 
     start()
     gdev = addon_module("gaussvdb_addon.gpu.device")

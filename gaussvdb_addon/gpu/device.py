@@ -31,6 +31,7 @@ from ...kernels.render.devices.cpu_device import CPUDevice
 from ...kernels.render.devices.device import Device, register_device
 from ...kernels.render.gpu import case, tables_color, tables_gauss, tables_tiles
 from ...kernels.render.gpu import tables as gpu_layout
+from ...kernels.render.inputs.layout import BG_DEPTH
 from . import compute, context, tiles
 
 # the shaders of the modes this device draws (kernels/render/devices/modes.py), by name
@@ -93,7 +94,7 @@ class GPUDevice(Device):
         for (a, b), (c, d) in tiles:
             out = self._cpu_render(scene, camera, tf, rows=(a, b), cols=(c, d))
             rgba[a - r0:b - r0, c - c0:d - c0] = out["Combined"]
-            dv[a - r0:b - r0, c - c0:d - c0, 0] = out.get("Depth", 1e10)
+            dv[a - r0:b - r0, c - c0:d - c0, 0] = out.get("Depth", BG_DEPTH)
             dv[a - r0:b - r0, c - c0:d - c0, 1] = out.get("Value", 0.0)
         return len(tiles)
 
@@ -166,7 +167,7 @@ class GPUDevice(Device):
         nr, nc = r1 - r0, c1 - c0
         rgba = np.zeros((nr, nc, 4), np.float32)
         dv = np.zeros((nr, nc, 4), np.float32)
-        dv[..., 0] = 1e10
+        dv[..., 0] = BG_DEPTH
         step = STEP_ROWS if (progress or cancel) else max(nr, 1)
         cancelled = False
 

@@ -11,7 +11,7 @@ set-up and registers itself with ``register_device``.
 
 Passes: 'Combined' float32 (H, W, 4), linear, premultiplied alpha, row 0 = bottom;
 'Depth' float32 (H, W): world distance along the ray where the accumulated opacity reaches 0.5
-(1e10 where it never does); 'Value' float32 (H, W): opacity-weighted mean data value (0 where
+(layout.BG_DEPTH where it never does); 'Value' float32 (H, W): opacity-weighted mean data value (0 where
 nothing was hit; level sets contribute no value).
 """
 from __future__ import annotations
