@@ -28,7 +28,7 @@ def _ramp_scene(bpy, scene):
 
 def test_ramp_png_matches_colormap_table(bpy_module, scene, tmp_path):
     from bl_ext.user_default.gaussvdb.gaussvdb_addon.engine import image_file
-    from bl_ext.user_default.gaussvdb.kernels.render.colormaps import colormap
+    from bl_ext.user_default.gaussvdb.kernels.render.scene.colormaps import colormap
 
     bpy = bpy_module
     _ramp_scene(bpy, scene)

@@ -121,7 +121,7 @@ _CONCURRENT = """
     import sys, threading, numpy as np, numba
     sys.path.insert(0, {root!r})
     from kernels.render import Camera, RenderObject, RenderScene, TransferFunction, get_device
-    from kernels.render.synthetic import gaussian_set, grid_from_dense
+    from kernels.render.scene.synthetic import gaussian_set, grid_from_dense
 
     rng = np.random.default_rng(7)
     c = rng.uniform(0, 24, (400, 3))
