@@ -173,12 +173,12 @@ def read_image(path):
 def f12(folder, name, mode, device):
     import bpy
 
-    final_render = importlib.import_module(MODULE + ".gaussvdb_addon.engine.final_render")
+    image_file = importlib.import_module(MODULE + ".gaussvdb_addon.engine.image_file")
     scene = bpy.context.scene
     scene.gaussvdb.mode = mode
     scene.gaussvdb.device = device
     path = os.path.join(folder, f"{name}_{mode.lower()}_{device.lower()}.exr")
-    stats = final_render.render_scene_to_file(scene, path)
+    stats = image_file.render_scene_to_file(scene, path)
     img = read_image(path)
     assert img[..., 3].max() > 0.05, "an empty image"
     return img, stats
