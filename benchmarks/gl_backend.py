@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-_ASM = os.path.join(ROOT, "kernels", "render", "glsl_assembly.py")
+_ASM = os.path.join(ROOT, "kernels", "render", "gpu", "assembly.py")
 
 
 def assembly():

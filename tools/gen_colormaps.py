@@ -32,7 +32,7 @@ def tables() -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--out", default=os.path.join(ROOT, "kernels", "render", "colormaps.npz"))
+    ap.add_argument("--out", default=os.path.join(ROOT, "kernels", "render", "scene", "colormaps.npz"))
     args = ap.parse_args(argv)
     import matplotlib
 

@@ -4,7 +4,8 @@ has a GPU shader, with that shader, and a derived mode through the mode it is dr
 
 def test_the_gpu_device_draws_the_tables_gpu_modes(addon):
     from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import device
-    from bl_ext.user_default.gaussvdb.kernels.render import available_devices, modes
+    from bl_ext.user_default.gaussvdb.kernels.render import available_devices
+    from bl_ext.user_default.gaussvdb.kernels.render.devices import modes
 
     drawn = {m.name.lower() for m in modes.drawn_modes() if modes.spec(m).gpu is not None}
     assert set(device.MODES) == drawn == {"particles", "field", "paper", "reference"}

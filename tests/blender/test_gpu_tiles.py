@@ -89,7 +89,7 @@ def test_lists_past_the_gpu_limit_come_from_the_cpu(mods):
 def test_lists_past_both_limits_go_to_the_cpu_device(mods):
     """Lists too long for the GPU and for the CPU's lists too (a camera inside a dense volume):
     the CPU device draws the frame with its leaf walk, and says so."""
-    from bl_ext.user_default.gaussvdb.kernels.render import frame_setup  # the extension's own copy
+    from bl_ext.user_default.gaussvdb.kernels.render.devices import frame_setup  # the extension's own copy
     from references import GPU_MIN_DB, psnr
 
     from kernels.render import CPUDevice
