@@ -5,8 +5,8 @@ from one sun, on the bundled sample (or given .vdb files), and the ratios to Emi
                                    [--repeat 2] [--threads 0] [--device cpu|gpu]
 
 Whole frames (the per-frame set-up, which builds the shadow grid, included), best of --repeat
-after a warm-up. Particles mode shades each lit chord once (_cpu_gauss.lit_member) on gradients
-computed once per sync (_cpu_lit.lit_gradients: in the first frame, outside the best-of timing).
+after a warm-up. Particles mode shades each lit chord once (cpu.gauss.lit_member) on gradients
+computed once per sync (cpu.lit.lit_gradients: in the first frame, outside the best-of timing).
 Targets: Lit <= 1.5x, shadows <= 4x. --device gpu: the GPU device (compute shaders on Blender's gpu
 module; its frames' set-up, shadow grids included, runs on the CPU device); a frame it hands to
 the CPU is said.

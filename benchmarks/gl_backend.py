@@ -176,7 +176,7 @@ class Frame:
         tex.update(tl_box=table(m), t_lb=table(m), cnt=gl.counter(ntx, nty))
         self._pass("FOOT", m, tex, {"n_g": m})
         counts = np.frombuffer(tex["cnt"].read(), np.uint32).astype(np.int64)
-        start = np.zeros(counts.size + 1, np.int64)  # gpu_layout_tiles.starts
+        start = np.zeros(counts.size + 1, np.int64)  # gpu.tables_tiles.starts
         np.cumsum(counts, out=start[1:])
         total = int(start[-1])
         if total > (1 << 24) - 1 or -(-max(total, 1) // row) > limit:
@@ -218,7 +218,7 @@ class Frame:
 
 def overflow_tiles(case, dv):
     """Screen tiles with a pixel whose ray the shader could not finish (the device redraws them
-    on the CPU device: gpu_layout_gauss.overflow_tiles)."""
+    on the CPU device: gpu.tables_gauss.overflow_tiles)."""
     tile = int(case.define("TILE"))
     rows, cols = np.nonzero(dv[..., 0] == np.float32(float(case.define("OVERFLOW_DEPTH").strip("()"))))
     return sorted(set(zip((rows // tile).tolist(), (cols // tile).tolist())))

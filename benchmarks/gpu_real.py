@@ -113,7 +113,7 @@ def measure(gl, path, view, fallbacks):
     fallbacks["overflow_tiles"] += len(over)
     fallbacks["frames_with_overflow"] += bool(over)
     row["gpu_bytes"] = f.gpu_bytes()
-    if "g_rec" in f.tex:  # the per-Gaussian tables' bytes (gpu_layout_gauss.bytes_per_gaussian)
+    if "g_rec" in f.tex:  # the per-Gaussian tables' bytes (gpu.tables_gauss.bytes_per_gaussian)
         per = {"g_rec": 16 * -(-int(case.define("GREC_SIZE")) // 4), "g_cval": 4, "g_grad": 16}
         row["gauss_bytes_each"] = sum(b for n, b in per.items() if n in f.tex)
     return row

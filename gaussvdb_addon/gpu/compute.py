@@ -14,7 +14,7 @@ _SHADERS = {}  # Program -> compiled shader, per process
 
 
 def group(spec):
-    """The work group's side for a mode on this renderer (glsl_assembly.group_side)."""
+    """The work group's side for a mode on this renderer (assembly.group_side)."""
     import gpu
 
     return asm.group_side(spec.defines, gpu.platform.renderer_get())
@@ -25,7 +25,7 @@ _kind = asm.texture_kind
 
 def create_info(program):
     """A glsl_assembly.Program as Blender's create-info (the standalone backend declares the same
-    Program as GLSL 4.30: glsl_assembly.glsl_430)."""
+    Program as GLSL 4.30: assembly.glsl_430)."""
     import gpu
 
     info = gpu.types.GPUShaderCreateInfo()
@@ -53,7 +53,7 @@ def compiled(program):
 
 
 def shader(mode, spec, textures, ints):
-    """The mode's shader for these tables (glsl_assembly.mode_program on this renderer)."""
+    """The mode's shader for these tables (assembly.mode_program on this renderer)."""
     import gpu
 
     program = asm.mode_program(mode, spec.glsl, spec.defines,

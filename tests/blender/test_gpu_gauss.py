@@ -102,7 +102,7 @@ def test_overflowing_rays_drawn_on_cpu(gpu, cpu):
 
 
 def test_packed_gaussian_words_survive_upload_and_fetch(gpu, cpu):
-    """g_rec's packed words (gpu_layout_gauss.size_words) read back in a compute shader with
+    """g_rec's packed words (gpu.tables_gauss.size_words) read back in a compute shader with
     floatBitsToUint are the bits numpy packed: each 16-bit half written out as an exact float."""
     import gpu as gpu_module
     from bl_ext.user_default.gaussvdb.gaussvdb_addon.gpu import compute, context
@@ -169,7 +169,7 @@ def test_field_sphere_surface_on_the_gpu(gpu, cpu):
 def one_layer_cube(tmp_path_factory):
     """A cube level set whose faces lie 0.9 voxel past a layer of voxel centres: the band keeps one
     layer of voxels under each face (distance 0.1, never 0), so every hit on it is a passage
-    through a single layer (_cpu_surface.field_crossing's rule), at Medium and High."""
+    through a single layer (cpu.surface.field_crossing's rule), at Medium and High."""
     from vdb_fixtures import write_grid
 
     from kernels.lod import build_lod

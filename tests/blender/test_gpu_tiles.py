@@ -1,5 +1,5 @@
 """The screen-tile lists the GPU builds (gpu/tiles.py, glsl/tiles.glsl) against the CPU's
-(_cpu_tiles.screen_tiles): per tile every Gaussian the CPU lists is listed, in the order of the
+(cpu.tiles.screen_tiles): per tile every Gaussian the CPU lists is listed, in the order of the
 entry bounds, the bounds within float32 rounding, each entry's pixel mask holding the CPU's."""
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Reference mode's one-fog-volume loop (_cpu_fog) against the general piece sampler it stands in
+"""Reference mode's one-fog-volume loop (cpu.fog) against the general piece sampler it stands in
 for, and its inline absorption against expm1."""
 import numpy as np
 import pytest

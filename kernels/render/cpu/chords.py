@@ -1,4 +1,4 @@
-"""The pieces of the particles/field sweeps (see _cpu_gauss for the method): the hit record's
+"""The pieces of the particles/field sweeps (see cpu.gauss for the method): the hit record's
 and the sweep state's columns, the entry queue ordered by (t, id), chord bounds and closed-form
 optical depth, and closing an interval of overlapping chords; and the per-Gaussian ray test that
 fills the queue."""

@@ -1,6 +1,6 @@
 """Reference mode's common case in tight loops: a single fog volume, Emission shading, coloured
 by its own grid through a linear transfer function (no level set, lights, second grid or log
-scale). It samples the points and composites the model of _cpu_pieces.reference_piece (midpoints
+scale). It samples the points and composites the model of cpu.pieces.reference_piece (midpoints
 of equal steps per leaf interval, trilinear, post-classified, exact exponential) to rounding, but
 keeps the ray's state in registers, walks every interval of the ray in one call (a call per piece
 with every table group as arguments cost more than its samples), scales the table position once
@@ -55,7 +55,7 @@ def absorbed(tau):
 @njit(**_hot)
 def equal_steps(p0, p1, dt):
     """(count, length) of the equal steps of at most dt over [p0, p1], as the general sampler
-    divides it (_cpu_pieces.reference_piece): compiled on its own without fastmath (numba's
+    divides it (cpu.pieces.reference_piece): compiled on its own without fastmath (numba's
     inlining would give it the caller's flags), so that a reciprocal never changes a count."""
     ns = int(math.ceil((p1 - p0) / dt))
     if ns < 1:
@@ -90,7 +90,7 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
             continue
         cxyz = cell_xyz[cid]
         B = bricks[cid]
-        # the interval's start in the leaf's brick, its samples clamped as _cpu_surface.brick_xyz does
+        # the interval's start in the leaf's brick, its samples clamped as cpu.surface.brick_xyz does
         bx = ox + p0 * dx - (cxyz[0] * 8 - 1)
         by = oy + p0 * dy - (cxyz[1] * 8 - 1)
         bz = oz + p0 * dz - (cxyz[2] * 8 - 1)
@@ -112,7 +112,7 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
                 val = vals[i - c0]
                 if val != val:
                     continue  # skipped, or NaN: no medium
-                # the transfer function's table position (_cpu_math.tf_x, lut_pos), scaled once per ray
+                # the transfer function's table position (cpu.vecmath.tf_x, lut_pos), scaled once per ray
                 if hi > lo:
                     f = (val - lo) * scale
                 else:
@@ -137,7 +137,7 @@ def reference_fog(st, n, iv_ta, iv_tb, iv_cell, ro, rd, step, bricks, cell_xyz, 
                 vsum += wt * val
                 vwt += wt
                 Tn = T * (1.0 - a)
-                if depth == BG_DEPTH and Tn <= 0.5:  # the median depth (_cpu_math.composite)
+                if depth == BG_DEPTH and Tn <= 0.5:  # the median depth (cpu.vecmath.composite)
                     fr = math.log(T / 0.5) / tau if T > 0.5 else 0.0
                     depth = p0 + (i + 0.5) * h - 0.5 * h + fr * h
                 T = Tn

@@ -1,7 +1,7 @@
 """Particles and field modes: each ray tests every Gaussian once and sweeps its chords in
 (t, id) order, streaming behind its candidate list so early termination still saves the work.
 Candidates come from the frame's screen tile (trace_tiles, ordered by a lower bound of the entry
-time: see _cpu_tiles) or, when there are no tile lists, from the leaf walk (trace_gauss).
+time: see cpu.tiles) or, when there are no tile lists, from the leaf walk (trace_gauss).
 
 Why the walk is exact and complete: it visits leaf cells front to back and each cell lists the
 Gaussians whose support box meets it. A Gaussian met in a cell was already tested if its box also
@@ -177,12 +177,12 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
                 obj_ls, tf_lut, tf_par, svals, sact, samp, acc, sprev, objs, xfer, wr, sgrad, g_cw,
                 cvals):
     """Field: the samples before horizon (see module doc). Returns 1 once the ray is opaque.
-    Surfaces (Kind.SURFACE): the first crossing between samples (_cpu_surface.field_crossing;
+    Surfaces (Kind.SURFACE): the first crossing between samples (cpu.surface.field_crossing;
     sprev: the object's previous sample level and index); the volumes composite up to it and the
     ray ends there (mixture_hit). With signed distances (objs.sdf) their mixture is carried as a
     colour grid's is (CV, g_cw, cvals). Lit volumes (objs.lit): each sample is shaded on the
     mixture's analytic gradient, sum_g -V_g (x - mu_g) / sigma_g^2 (sgrad per object; wr the
-    world ray; _cpu_lit). Volumes coloured by a second grid (objs.ctf): its mixture, with the
+    world ray; cpu.lit). Volumes coloured by a second grid (objs.ctf): its mixture, with the
     weights g_cw on the same Gaussians, is carried beside the field (CV) and summed per object
     (cvals); plus that grid's background (objs.cbg), it is the colour map's value."""
     q0, nq, nact, isamp = qs[QH], qs[NQ], qs[NACT], qs[ISAMP]
@@ -445,7 +445,7 @@ def test_block(cand, nc, ro, rd, g_rec, g_obj, k2, t_near, t_far, blk, rclip):
 @njit(**_hot)
 def trace_tiles(mode, st, i, j, t0, t1, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max):
     """One ray (pixel i, j), particles or field, over its screen tile's list accel.t_items[t0:t1]
-    (ordered by the lower bound of each support's entry, gauss.rec[g, REC_LB]: see _cpu_tiles), in blocks
+    (ordered by the lower bound of each support's entry, gauss.rec[g, REC_LB]: see cpu.tiles), in blocks
     of NB candidates (the entries with the pixel's mask bit), the chords clipped to the ray's
     [t_near, t_far]. Returns 0 or OVERFLOW."""
     qs, fs, cand, blk = scr.qs, scr.fs, scr.cand, scr.blk

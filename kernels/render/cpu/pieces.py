@@ -62,7 +62,7 @@ def reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, ro, rd, obj_step, brick
     distance from + to - between samples (sprev: the object's previous one), refined by bisection;
     a ray that starts inside (a clip or the camera's cut) hits at its start. The volumes composite
     up to the hit, which ends the ray (surface_hit). Lit volumes: shaded on the voxels' gradient
-    (trilinear central differences, _cpu_lit); wr: the world ray. Volumes coloured by a second
+    (trilinear central differences, cpu.lit); wr: the world ray. Volumes coloured by a second
     grid (objs.ctf) take the colour from its bricks (cbricks, the same cells), sampled alike."""
     dt = INF
     for c in range(ncov):

@@ -2,8 +2,8 @@
 numba cache directory can be chosen first. Every pixel is computed independently, in float64,
 so images are bitwise identical for any thread count.
 
-Modes (scene.Mode): particles, field (_cpu_gauss), paper, reference (here); level-set surfaces
-in _cpu_surface. The arguments come grouped as packing's named tuples (gauss: Gaussians,
+Modes (scene.Mode): particles, field (cpu.gauss), paper, reference (here); level-set surfaces
+in cpu.surface. The arguments come grouped as packing's named tuples (gauss: Gaussians,
 objs: Objects, accel: Accel, xfer: Transfer, out: Output, scr: Scratch, hits: Hits).
 """
 from __future__ import annotations
@@ -186,7 +186,7 @@ def ray_scratch(cap):
 def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out, scr, hits):
     """Pixels p0.. of the band of nr output rows from jr0 (image row j0) and image columns
     [c0, c1) (output column i - c0), tile by tile (see render_band); no allocation, no reference
-    counting (see _cpu_math._hot). Returns -1, or the pixel whose ray needs more hit rows than
+    counting (see cpu.vecmath._hot). Returns -1, or the pixel whose ray needs more hit rows than
     hits has. Rays run over [clip start, clip end] along the view axis (cam[CAM_CLIP:]); each object's
     part of a ray is further cut to its clip half-spaces objs.clip[ob] (scr.rclip[ob], clip.py)."""
     W = int(cam[CAM_W])

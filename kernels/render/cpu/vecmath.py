@@ -34,7 +34,7 @@ _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # (atomically) every array argument of every call, inlined or not: ~9 ns per array per call,
 # measured at 35-45% of a particles frame.
 _hot = dict(_jit, _nrt=False)
-# The one-fog sampler (_cpu_fog): fused multiply-adds and
+# The one-fog sampler (cpu.fog): fused multiply-adds and
 # reciprocals, which move results by rounding only (no flag that assumes away NaN, Inf or the
 # order of a sum). 1.2-1.3x on its loop. (Not the walk: its interval ends then move far
 # enough to shift a surface hit against the GPU device.)

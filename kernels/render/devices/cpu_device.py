@@ -108,7 +108,7 @@ class CPUDevice(Device):
         return self.gacc
 
     def _lit_gradients(self):
-        """Lit particles' Gaussians.grad (_cpu_lit.lit_gradients), once per sync: field weights
+        """Lit particles' Gaussians.grad (cpu.lit.lit_gradients), once per sync: field weights
         (value x amplitude) do not change with the transfer function."""
         if self._grad is None:
             from ..cpu.lit import lit_gradients

@@ -29,6 +29,6 @@ class Frame:
     # the Gaussians' second-grid values for a device that colours each Gaussian by its own (the
     # GPU's g_cval, modes: color GAUSSIANS, from CPUDevice.color_values); None: not read
     color_values: np.ndarray | None = None
-    # paper mode's screen-tile lists for a GPU device (gpu_layout_gauss.frame_tiles: built there
+    # paper mode's screen-tile lists for a GPU device (gpu.tables_gauss.frame_tiles: built there
     # once per frame; None: too many)
     gpu_tiles: tuple | None | str = NOT_BUILT

@@ -116,7 +116,7 @@ def cell_skip(spec, acc, w, tfs, obj_tf, obj_kind):
 
 
 def screen_tiles(spec, scene, camera, acc, g_w, enabled=True, elsewhere=False):
-    """Per-frame screen-tile lists for the modes that draw from them (_cpu_tiles): starts, ids,
+    """Per-frame screen-tile lists for the modes that draw from them (cpu.tiles): starts, ids,
     pixel masks and each Gaussian's entry bound; or empty arrays and no bounds (the kernels then
     walk the leaf hierarchy) when the mode has none or the lists would pass accel.tile_budget (a
     camera inside a dense volume puts every support near the eye plane in every tile).
@@ -137,7 +137,7 @@ def screen_tiles(spec, scene, camera, acc, g_w, enabled=True, elsewhere=False):
 
 
 def shadow_grids(voxels, scene, index_box, objects, gauss, wext, accel, transfer):
-    """The shadowed lit volumes' grids of optical depth towards each light (_cpu_lit): points
+    """The shadowed lit volumes' grids of optical depth towards each light (cpu.lit): points
     SHADOW_POINTS along each object's longest index axis (index_box: the objects' index boxes),
     shadow rays through the voxels (``voxels``) or the Gaussians with the particles' extinction
     weights ``wext`` (closed form). The objects with them."""

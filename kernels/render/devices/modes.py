@@ -42,13 +42,13 @@ class ModeSpec:
     # the summed Gaussian field is classified (weights value x amplitude, cells bounded by sums,
     # the second mixture), not each Gaussian by its own value
     field: bool
-    # Gaussians listed per screen tile once per frame (_cpu_tiles); the leaf walk only when the
+    # Gaussians listed per screen tile once per frame (cpu.tiles); the leaf walk only when the
     # lists are off or too long. False: every ray walks the leaves
     screen_tiles: bool
     # screen tiles no unskipped leaf projects into are the background, unwalked (leaf_tiles)
     leaf_tiles: bool
     # drawn piece by piece over the leaves a ray crosses (_cpu.trace_pieces), not by Gaussian
-    # segments (_cpu_gauss)
+    # segments (cpu.gauss)
     pieces: bool
     lights: str | None  # lit volumes shaded at each Gaussian's CENTRES, at the SAMPLES; None: not lit
     surfaces: bool  # level-set surfaces (RenderObject.surface) drawn as surfaces; False: as shells

@@ -176,7 +176,7 @@ def walk_frame(accel):
 
 # -- reference mode -------------------------------------------------------------------------------
 def reference_geometry(frame):
-    """Voxel atlas (with the colour grids' bricks after the grid's: gpu_layout_color), the leaf
+    """Voxel atlas (with the colour grids' bricks after the grid's: gpu.tables_color), the leaf
     hierarchy and each cell's [x, y, z] in leaves (once per sync)."""
     a = frame.accel
     color = a.cbricks.shape == a.bricks.shape  # (else a placeholder: no colour grid)

@@ -15,13 +15,13 @@ Tables (name: rows x columns, what):
   is a normal half float's bits (range checked), so the word is a normal float32 (never NaN,
   Inf or denormal) and survives upload and texelFetch bit for bit. Colours are not uploaded:
   the shader takes them from the transfer function's LUT at the value (level sets: ls_color;
-  volumes coloured by a second grid: their colour map at gpu_layout_color's g_cval).
+  volumes coloured by a second grid: their colour map at gpu.tables_color's g_cval).
 - t_start (flat, tiles + 1): each screen tile's first entry.
 - t_ent (layout.TENT): Gaussian id and the 64-bit pixel mask in three exact pieces of 22, 22 and
   20 bits (MASK_BITS; bit b of the mask: piece b // 22, bit b % 22).
 - g_grad (m x 4, particles mode with lit volumes, geometry: once per sync): the gradient at each
   Gaussian's centre of its object's other Gaussians' field and its own field weight
-  (packing.Gaussians.grad, _cpu_lit.lit_gradients); the shader adds its own part at the chord.
+  (packing.Gaussians.grad, cpu.lit.lit_gradients); the shader adds its own part at the chord.
 - Field mode also gets the leaf lookup its surfaces' normals need (mixture_normal): the core's
   walk tables (node_table, node_cells, cell_skip) and the cells' Gaussian lists c_start, c_items
   (flat).
@@ -131,7 +131,7 @@ def bytes_per_gaussian() -> int:
 
 
 def tile_tables(start, items, masks) -> dict:
-    """t_start and t_ent from the frame's screen-tile lists (_cpu_tiles)."""
+    """t_start and t_ent from the frame's screen-tile lists (cpu.tiles)."""
     ent = np.zeros((max(1, len(items)), TENT_SIZE))
     ent[:len(items), TENT_ID] = items
     ent[:len(items), TENT_MASK:TENT_MASK + 3] = mask_pieces(masks)

@@ -1,11 +1,11 @@
 """The inputs of the GPU's own screen-tile lists (glsl/tiles.glsl, the float32 twin of
-_cpu_tiles.gauss_footprints + tile_counts + tile_fill), plain numpy:
+cpu.tiles.gauss_footprints + tile_counts + tile_fill), plain numpy:
 
 - tl_g (gpu_layout.fold_rows, layout.TLG): centre (3), 1/sigma (3), this frame's weight, object.
 - tl_par (flat): layout.TLP (W, H, ex, ey, offx, offy, ortho, k), then per object layout.TLO (its
-  camera matrix (3 x 4, _cpu_tiles.tile_camera) and spectral norm).
+  camera matrix (3 x 4, cpu.tiles.tile_camera) and spectral norm).
 
-The lists the shaders build have the uploaded lists' layout (gpu_layout_gauss.tile_tables:
+The lists the shaders build have the uploaded lists' layout (gpu.tables_gauss.tile_tables:
 t_start, t_ent) plus t_lb, each Gaussian's float32 entry bound in texel g (x)."""
 from __future__ import annotations
 
@@ -78,7 +78,7 @@ def starts(counts) -> np.ndarray:
 
 
 def cpu_lists(frame):
-    """The fallback when the GPU's lists do not fit its textures: the CPU's lists (_cpu_tiles.
+    """The fallback when the GPU's lists do not fit its textures: the CPU's lists (cpu.tiles.
     screen_tiles) as the same three tables; None when those pass MAX_TILE_ENTRIES too."""
     from ..cpu.tiles import screen_tiles
     from ..devices.frame_setup import MAX_TILE_ENTRIES

@@ -76,13 +76,13 @@ ROW_TEXELS = 4096  # GPU tables: texels per texture row
 SQRT_HALF = math.sqrt(0.5)
 SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
 TWO_OVER_SQRT_PI = 2.0 / math.sqrt(math.pi)
-# Field-mode surfaces (_cpu_surface): the occupancy above which a signed-distance mixture is
+# Field-mode surfaces (cpu.surface): the occupancy above which a signed-distance mixture is
 # trusted, the variance (voxels^2) of the blur under an occupancy surface's normal, and how far
 # (voxels) around the hit the normal's Gaussians are gathered. SURFACE_LEVEL: lod.levelset's.
 SDF_OCCUPANCY = 0.25
 NORMAL_BLUR = 1.0
 NORMAL_REACH = 4.0
-# GPU Gaussian records (gpu_layout_gauss): 1/sigma as 18-bit floats (mantissa bits dropped,
+# GPU Gaussian records (gpu.tables_gauss): 1/sigma as 18-bit floats (mantissa bits dropped,
 # exponent bias), the pixel masks in pieces of MASK_BITS bits
 MANT_DROP, EXP_REBIAS = 10, 112
 MASK_BITS = 22
@@ -143,13 +143,13 @@ OBJ = Record("OBJ", [("W2I", 12), ("KIND", 1), ("TF", 1), ("STEP", 1), ("LIT", 1
                      ("WALK_SCALE", 1), ("REF", 3), ("LEVEL", 1), ("SH_GRID", SHG.size)],
              texels=("W2I", "NODE_MIN", "NODE_DIMS", "REF", "SH_GRID"))
 OBJ_TEXELS = texels(OBJ.size)
-# obj_color (gpu_layout_color): colour map row (-1: none), colour grid's background
+# obj_color (gpu.tables_color): colour map row (-1: none), colour grid's background
 OCOL = Record("OCOL", "CTF CBG PAD:2")
-# g_rec (gpu_layout_gauss): centre, entry bound (paper: w x volfac), 1/sigma words (size_words), w, value
+# g_rec (gpu.tables_gauss): centre, entry bound (paper: w x volfac), 1/sigma words (size_words), w, value
 GREC = Record("GREC", "MU:3 BOUND WORDS:2 W VAL")
 # t_ent: Gaussian id, pixel mask in three pieces of MASK_BITS
 TENT = Record("TENT", "ID MASK:3")
-# tl_g, tl_par (gpu_layout_tiles): a Gaussian; the camera and k, then per object its camera
+# tl_g, tl_par (gpu.tables_tiles): a Gaussian; the camera and k, then per object its camera
 # matrix (3 x 4) and spectral norm
 TLG = Record("TLG", "MU:3 INV:3 W OBJ")
 TLP = Record("TLP", "W H EX EY OX OY ORTHO K")
@@ -164,7 +164,7 @@ TLO = Record("TLO", "CMAT:12 NORM PAD:3")
 ST = Record(None, "TR RAD:3 DEPTH VSUM VWT SEGS HIT TMIN PDEPTH PCUR HIT_T HIT_G:3 HIT_OB HIT_C:3",
             glsl=False, size_name="NST")
 HIT_FOUND, HIT_NORMAL = 1.0, 2.0
-# A hit record (_cpu_chords): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
+# A hit record (cpu.chords): chord [S, E], closest approach TS, sqrt(a/2) SA, C = peak x
 # sqrt(pi / 2a), Q/2 HQ, a/2 HA, peak PK; then particles: erf at the member's last boundary FA
 # (and a running one, FB), colour, value (0 when NaN) and value weight (0 when NaN); field: value
 # V, ratios R, RC, exit EX, for lit volumes the gradient's terms GA + t GB and, for volumes
@@ -173,7 +173,7 @@ _CHORD = "S E TS SA C HQ HA PK "
 HIT_PARTICLES = Record(None, _CHORD + "FA FB CR CG CB VAL VW", glsl=False, size_name="NF_PARTICLES")
 HIT_FIELD = Record(None, _CHORD + "V R RC EX GA:3 GB:3 CV", glsl=False, size_name="NF_FIELD")
 NF = max(HIT_PARTICLES.size, HIT_FIELD.size)  # a hit record's columns
-# The sweep state (_cpu_chords): qs (int64): the queue's end NQ, active NACT, members NM, hits
+# The sweep state (cpu.chords): qs (int64): the queue's end NQ, active NACT, members NM, hits
 # NH, field sample ISAMP, queue head QH; fs: IA, LAST, RHO, HSTEP, CEND
 QS = Record(None, "NQ NACT NM NH ISAMP QH", glsl=False, size_name="NQS")
 FS = Record(None, "IA LAST RHO HSTEP CEND", glsl=False, size_name="NFS")

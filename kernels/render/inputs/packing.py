@@ -55,11 +55,11 @@ Gaussians = namedtuple("Gaussians", "mu inv w col val obj volfac rec sph clo chi
 # colouring (ls, layout.LS), sample step in voxels, clip half-spaces (clip.pack), the float32
 # reference point of the bounding spheres, shading (layout.Shading: volumes only, see
 # pack_objects) and the lit volumes' shadow grids (sh_grid rows, layout.SHG; sh_tau: the optical depth
-# towards each light at each grid point, light fastest; _cpu_lit) and, for a volume coloured by a
+# towards each light at each grid point, light fastest; cpu.lit) and, for a volume coloured by a
 # second grid, its colour map's transfer-function row (-1: coloured by its own values) and that
 # grid's background (its value where no Gaussian is: the field adds it to the colour mixture);
 # sdf: 1 for a surface whose Gaussians carry signed distances (their mixture is carried as the
-# colour mixture is; cbg: its single-layer level, levelset.surface_level: _cpu_surface.field_crossing).
+# colour mixture is; cbg: its single-layer level, levelset.surface_level: cpu.surface.field_crossing).
 Objects = namedtuple("Objects", "w2i kind tf ls step clip ref lit sh_grid sh_tau ctf cbg sdf")
 # Acceleration: the leaf hierarchy (node grids, node -> cell tables: per object its leaves, then
 # the grids of coarser cells that hold the larger Gaussians), the cells' Gaussian lists (and per
@@ -84,7 +84,7 @@ Output = namedtuple("Output", "rgba depth value segs")
 # walk's last cell per object, per-object sample sums, one sample and its sums, colour bounds,
 # the ray state, the sweep state, a block of tile candidates and their tests, surfaces' previous
 # sample per object, the world ray (origin, direction), lit volumes' field gradient per object,
-# the colour grids' mixture per object and the one-fog sampler's chunk of values (_cpu_fog).
+# the colour grids' mixture per object and the one-fog sampler's chunk of values (cpu.fog).
 Scratch = namedtuple("Scratch", "iv_ta iv_tb iv_obj iv_cell srt bnd act_iv cov_obj cov_cell ro rd "
                                 "rclip lastc svals sact samp acc cb st qs fs cand blk sprev wr sgrad "
                                 "cvals fog")
@@ -248,7 +248,7 @@ def pack_accel(acc, cell_skip, tiles=NO_TILES, voxels=False, xfer=None) -> Accel
 def clear_bits(sub_max, cell_obj, obj_tf, xfer, chunk=1 << 14):
     """int64 per cell: bit (sx * 4 + sy) * 4 + sz set where every sample of that sub-block
     (bricks.sub_max) is transparent under its object's transfer function, so that the one-fog
-    sampler (_cpu_fog) skips it and draws the same image: with a linear table whose first alpha is
+    sampler (cpu.fog) skips it and draws the same image: with a linear table whose first alpha is
     0, a value v <= lo (hi <= lo: v < hi) takes alpha 0. The bound widens the sub-block's max by
     the trilinear interpolation's rounding (a few ulps of it; 32 here, and an underflow's), so no
     sample that would have drawn is skipped; a max of 0 needs none (weights >= 0: a sum of

@@ -1,6 +1,6 @@
 """Per-object clipping: an object keeps only the part of its medium inside all of its clip
 half-spaces, rows (a, b, c, d) of world points with a x + b y + c z + d >= 0. Their intersection is
-convex, so each ray meets it in one interval (_cpu_walk.clip_interval), which narrows that object's chords
+convex, so each ray meets it in one interval (cpu.walk.clip_interval), which narrows that object's chords
 (particles, field, paper) and leaf intervals (reference): the medium ends exactly at the cut, so
 the cut face shows the volume's colour there.
 

@@ -1,4 +1,4 @@
-/* Volumes coloured by a second grid (_cpu_math.recolor; tables: gpu_layout_color): the sample's
+/* Volumes coloured by a second grid (cpu.vecmath.recolor; tables: gpu.tables_color): the sample's
  * colour from the object's colour map at the second grid's value, its extinction and value
  * still its own grid's. COLOR_GRID: obj_color; COLOR_VALUES: g_cval (particles, paper). */
 #ifdef COLOR_GRID

@@ -150,7 +150,7 @@ void object_rays(Ray r)
   }
 }
 
-/* -- the leaf walk (_cpu_walk.walk_object), one leaf cell after the other --------------------- */
+/* -- the leaf walk (cpu.walk.walk_object), one leaf cell after the other --------------------- */
 #ifdef WALK
 bool cell_skipped(int id)
 {
@@ -286,7 +286,7 @@ bool walk_next(inout Walk w, out float ta, out float tb, out int cid)
 }
 #endif
 
-/* -- transfer functions (_cpu_math: tf_x, lut_pos, sample_color) ---------------------------- */
+/* -- transfer functions (cpu.vecmath: tf_x, lut_pos, sample_color) ---------------------------- */
 vec4 lut_at(int tfi, float x)
 {
   float f = x * float(LUT_SIZE - 1);
@@ -359,7 +359,7 @@ void sample_color(int ob, int kind, float s, vec3 p, out float sig, out vec3 col
   val = s;
 }
 
-/* -- the ray's state and compositing (_cpu_math.composite) ---------------------------------- */
+/* -- the ray's state and compositing (cpu.vecmath.composite) ---------------------------------- */
 struct State {
   float tr; vec3 rad; float depth, vsum, vwt, tmin;
   bool hit; float hit_t; vec3 hit_g; int hit_ob; vec3 hit_c;
@@ -426,7 +426,7 @@ void surface_hit(inout State st, int ob, float t, vec3 g, vec3 p)
 }
 
 /* light k seen from world point p on a ray of direction d: unit direction towards it and its
- * irradiance (_cpu_surface.light_at: points fall off as 1 / r^2, the headlight shines along d) */
+ * irradiance (cpu.surface.light_at: points fall off as 1 / r^2, the headlight shines along d) */
 bool light_at(int k, vec3 p, vec3 d, out vec3 l, out vec3 e)
 {
   vec4 a = row_texel(lights, k, 2, 0), b = row_texel(lights, k, 2, 1); /* LIGHT_KIND, _VEC; _RGB */
@@ -448,7 +448,7 @@ bool light_at(int k, vec3 p, vec3 d, out vec3 l, out vec3 e)
 }
 
 /* optical depth towards light li at index point x from object ob's shadow grid, trilinear,
- * clamped (_cpu_lit.shadow_tau) */
+ * clamped (cpu.lit.shadow_tau) */
 float shadow_tau(int ob, int li, vec3 x)
 {
   int s = OBJ_SH_GRID;
@@ -470,7 +470,7 @@ float shadow_tau(int ob, int li, vec3 x)
   return v;
 }
 
-/* Blinn-Phong on a lit volume sample of object ob (_cpu_lit.shade_sample): g the field's
+/* Blinn-Phong on a lit volume sample of object ob (cpu.lit.shade_sample): g the field's
  * index-space gradient at index point x, t the sample's distance along the world ray; replaces
  * the emission colour c unless the gradient is below the threshold */
 vec3 shade_sample(int ob, vec3 c, vec3 g, vec3 x, Ray r, float t)
@@ -517,7 +517,7 @@ vec3 shade_sample(int ob, vec3 c, vec3 g, vec3 x, Ray r, float t)
   return col;
 }
 
-/* Blinn-Phong at the hit (_cpu_surface.shade_hit) */
+/* Blinn-Phong at the hit (cpu.surface.shade_hit) */
 void shade_hit(inout State st, Ray r)
 {
   vec4 m0 = w2i_row(st.hit_ob, 0), m1 = w2i_row(st.hit_ob, 1), m2 = w2i_row(st.hit_ob, 2);

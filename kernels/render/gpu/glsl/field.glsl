@@ -1,4 +1,4 @@
-/* Field mode (needs gauss.glsl before it; _cpu_gauss.trace_tiles + sweep_field): the ray tests
+/* Field mode (needs gauss.glsl before it; cpu.gauss.trace_tiles + sweep_field): the ray tests
  * its screen tile's Gaussians in list order and samples the summed field at the midpoints
  * t_i = (i + 1/2) h (h: the finest object step along the ray) once every chord entering before
  * t_i is known. Each active chord's value is evaluated at the sample (the CPU carries it by two
@@ -19,7 +19,7 @@ int sprev_i[MAX_OBJ];
 bool f_over;
 
 #ifdef LIT
-/* lit volumes (_cpu_gauss.sweep_field): active chord k's part of its object's mixture gradient at
+/* lit volumes (cpu.gauss.sweep_field): active chord k's part of its object's mixture gradient at
  * t is -V (a_ga[k] + t a_gb[k]) (V its value there), summed per object and sample in f_grad */
 vec3 a_ga[PCAP], a_gb[PCAP];
 vec3 f_grad[MAX_OBJ];
@@ -57,7 +57,7 @@ void mixture_hit(inout State st, int ob, float th, float ti, float sig, vec3 col
 /* a signed-distance surface's single-layer level (gpu_layout.object_rows), 0 for none */
 float obj_level(int ob) { return obj_at(ob, OBJ_LEVEL); }
 
-/* object ob's surface between samples isamp - 1 and isamp at ti, or INF (_cpu_surface.field_crossing:
+/* object ob's surface between samples isamp - 1 and isamp at ti, or INF (cpu.surface.field_crossing:
  * level > 0, where S = nv / sv falls through 0 while sv >= SDF_OCCUPANCY, or the occupancy-weighted
  * centre of a passage through the shell that ends without it, its mean S below level; else where
  * sv rises through 0.5). sprev_i: the last sample, -1e9 for one outside the shell; the passage's
@@ -115,7 +115,7 @@ bool sweep_field(inout State st, float horizon)
       a_ha[nact] = f_ha[h];
       Gauss G = gauss_at(g);
       a_w[nact] = G.w;
-      a_c[nact] = G.val; /* the signed-distance weight (gpu_layout_gauss.gauss_tables) */
+      a_c[nact] = G.val; /* the signed-distance weight (gpu.tables_gauss.gauss_tables) */
       a_ob[nact] = n_obj == 1 ? 0 : G.ob;
 #ifdef LIT
       lit_enter(nact, G);
@@ -229,7 +229,7 @@ bool sweep_field(inout State st, float horizon)
 }
 
 /* the outward normal from the Gaussians centred in the leaf cells within NORMAL_REACH of the hit
- * (_cpu_surface.mixture_normal): with signed distances, the gradient of their weighted
+ * (cpu.surface.mixture_normal): with signed distances, the gradient of their weighted
  * least-squares linear fit (fit_gradient); else -gradient of the mixture blurred by NORMAL_BLUR */
 void mixture_normal(inout State st)
 {
@@ -292,7 +292,7 @@ void mixture_normal(inout State st)
       }
     }
   }
-  if (sdf && s0 > 0.0) { /* _cpu_surface.fit_gradient */
+  if (sdf && s0 > 0.0) { /* cpu.surface.fit_gradient */
     vec3 m = s1 / s0;
     mat3 c = s2 / s0 - outerProduct(m, m);
     vec3 b = d1 / s0 - m * (d0 / s0);

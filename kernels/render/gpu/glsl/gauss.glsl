@@ -1,8 +1,8 @@
 /* The Gaussian modes' shared pieces (particles, field, paper): the per-Gaussian tables, the
- * screen-tile lists (gpu_layout_gauss), erf, and the exact ray/support test (_cpu_chords.chord).
+ * screen-tile lists (gpu.tables_gauss), erf, and the exact ray/support test (cpu.chords.chord).
  * Float32 throughout; the CPU device's float64 image is matched within 50 dB, not bit for bit. */
 
-/* Gaussian g (gpu_layout_gauss.gauss_tables, GREC_SIZE floats): centre, entry bound (or paper's
+/* Gaussian g (gpu.tables_gauss.gauss_tables, GREC_SIZE floats): centre, entry bound (or paper's
  * w x volfac), 1/sigma (18-bit floats: size_words), weight w, value (0 when none), whether it
  * has a value, object */
 struct Gauss { vec3 mu; float bound; vec3 iv; float w, val; bool has_val; int ob; };
@@ -70,7 +70,7 @@ float erfc_g(float x) {
   return x >= 0.0 ? r : 2.0 - r;
 }
 float erf_g(float x) { return 1.0 - erfc_g(x); }
-/* erf(u1) - erf(u0), u0 <= u1, h = u1 - u0 formed by the caller (see _cpu_math.erf_span) */
+/* erf(u1) - erf(u0), u0 <= u1, h = u1 - u0 formed by the caller (see cpu.vecmath.erf_span) */
 float erf_span(float u0, float u1, float h) {
   float m = 0.5 * (u0 + u1);
   if (h * max(1.0, abs(m)) < 1e-2) {
@@ -83,7 +83,7 @@ float erf_span(float u0, float u1, float h) {
   return erf_g(u1) - erf_g(u0);
 }
 
-/* Gaussian G against the index-space ray o + t d (_cpu_chords.chord): returns (s, e, ts, pk)
+/* Gaussian G against the index-space ray o + t d (cpu.chords.chord): returns (s, e, ts, pk)
  * with the chord clipped to [tn, tf] (a miss: s >= e); aa = |d'|^2, qq its closest squared
  * distance, ra = 1 / |d'|. */
 vec4 chord(Gauss G, vec3 o, vec3 d, float k2, float tn, float tf, out float aa, out float qq, out float ra) {
@@ -151,7 +151,7 @@ void slot_free(int h)
   nfree++;
 }
 
-/* from the back (_cpu_chords.queue_insert): entries arrive nearly in order */
+/* from the back (cpu.chords.queue_insert): entries arrive nearly in order */
 void queue_insert(float t, int g, int h)
 {
   if (nq == PCAP) { /* the head has moved on: shift the queue down (a slot was free: room) */

@@ -1,4 +1,4 @@
-/* Paper mode (needs gauss.glsl before it; _cpu_pieces.paper_piece): the closest Gaussian entering
+/* Paper mode (needs gauss.glsl before it; cpu.pieces.paper_piece): the closest Gaussian entering
  * at or after the current origin (smallest entry, ties by id), fixed midpoint steps over its
  * chord, A = w volfac rho dt, C += T c A, T *= exp(-A), continue after its exit; overlapping
  * Gaussians entered earlier are ignored. The candidates are the screen tile's (lists built for

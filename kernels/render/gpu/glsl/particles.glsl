@@ -1,4 +1,4 @@
-/* Particles mode (needs gauss.glsl before it; _cpu_gauss.trace_tiles + sweep_particles, _cpu_chords.close_interval): one ray
+/* Particles mode (needs gauss.glsl before it; cpu.gauss.trace_tiles + sweep_particles, cpu.chords.close_interval): one ray
  * tests its screen tile's Gaussians in list order (by entry bound) and sweeps their chords in
  * (t, id) order; overlapping chords form clusters whose intervals get closed-form optical depth.
  * The hits live in PCAP fixed slots: a slot is freed when its chord's cluster interval closes
@@ -16,7 +16,7 @@ float s_a, s_last, s_rho, s_cend;
 vec3 cb_lo, cb_hi;  /* the open members' colour bounds */
 
 #ifdef LIT
-/* a lit volume's chord colour (_cpu_lit.lit_member): col shaded once at its closest approach ts
+/* a lit volume's chord colour (cpu.lit.lit_member): col shaded once at its closest approach ts
  * (qq: the whitened squared distance there) on the mixture's gradient, the Gaussian's own
  * (analytic) plus its neighbours' at its centre (g_grad: xyz, and its own field weight in w) */
 vec3 lit_chord(Gauss G, int g, float ts, float qq, vec3 col)

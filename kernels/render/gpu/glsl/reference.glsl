@@ -1,4 +1,4 @@
-/* reference mode (_cpu_pieces.reference_piece): the leaf walk of every object, pieces between
+/* reference mode (cpu.pieces.reference_piece): the leaf walk of every object, pieces between
  * the merged cell boundaries, trilinear voxel samples at midpoints from the brick atlas, exact
  * exponential compositing; objects overlapping in a piece add extinction; level-set surfaces:
  * first sign change + bisection, shaded in write_output. Lit volumes: Blinn-Phong on the voxels'

@@ -1,13 +1,13 @@
-/* The screen-tile lists built on the GPU (gpu_layout_tiles; the float32 twin of
- * _cpu_tiles.gauss_footprints, tile_counts and tile_fill), in three passes, one per STAGE_*:
+/* The screen-tile lists built on the GPU (gpu.tables_tiles; the float32 twin of
+ * cpu.tiles.gauss_footprints, tile_counts and tile_fill), in three passes, one per STAGE_*:
  * FOOT (one invocation per Gaussian): pixel rectangle and entry bound, entries counted per
  *   tile with imageAtomicAdd; the host reads the counts back for the prefix sum (t_start);
  * FILL (per Gaussian): each entry's slot from a second atomic counter per tile, written with
- *   its pixel mask (gpu_layout_gauss.tile_tables' layout) and its tile;
+ *   its pixel mask (gpu.tables_gauss.tile_tables' layout) and its tile;
  * SORT (per entry): its place in its tile by (entry bound, id), from its rank there.
  * Float32 rounding: the rectangle is widened by MARGIN_PX and the bound lowered a little more
  * than the CPU's, so every Gaussian the CPU lists in a tile is listed here too. */
-#define MARGIN_PX 0.02  /* (the GPU's own: wider than _cpu_tiles.MARGIN_PX) */
+#define MARGIN_PX 0.02  /* (the GPU's own: wider than cpu.tiles.MARGIN_PX) */
 #define INF (1.0 / 0.0)
 
 vec4 texel(sampler2D t, int e) { return texelFetch(t, ivec2(e % ROW_TEXELS, e / ROW_TEXELS), 0); }
