@@ -89,7 +89,7 @@ def main(argv=None):
                 rscene = sync.sync(dg)
                 tf = sync.transfer_function(scene.gaussvdb)
                 cam = camera.scene_camera(scene, dg, w, h)
-                dev = devices.final_device()[0]
+                dev = devices.final_device()
                 dev.sync(rscene)  # this sync's objects are new: not part of the frame's time
                 one = []
                 for _ in range(a.repeat):

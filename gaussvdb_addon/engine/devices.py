@@ -1,7 +1,7 @@
 """The render devices of the engine: which one a render uses, making one, and the process-wide
-ones of final renders (their kernels loaded once, acceleration reused across frames).
+ones of final renders (acceleration reused across frames).
 
-    device, seconds = devices.final_device("CPU")   # made and loaded now: seconds > 0
+    device = devices.final_device("CPU")            # made once a process
     name = devices.chosen_device(engine, scene)     # "GPU" only where it can run, else "CPU"
 """
 
@@ -20,20 +20,11 @@ def new_device(name="CPU"):
 
 
 def final_device(name="CPU"):
-    """(the process-wide device of final renders, seconds spent loading its kernels now): 0.0
-    when it was made before, so a frame's timings never hold the loading."""
-    dev = _FINAL.get(name)
-    if dev is not None:
-        return dev, 0.0
-    dev = new_device(name)
-    seconds = dev.load_kernels()
-    _FINAL[name] = dev
-    return dev, seconds
-
-
-def is_loaded(name) -> bool:
-    """Whether final renders on ``name`` have their device (no kernels to load first)."""
-    return name in _FINAL
+    """The process-wide device of final renders (made on first use; a frame loads the kernels
+    it needs with load_kernels before it is timed)."""
+    if name not in _FINAL:
+        _FINAL[name] = new_device(name)
+    return _FINAL[name]
 
 
 def gpu_usable(engine_class):

@@ -116,10 +116,7 @@ def _render(engine, depsgraph):
 def _render_on(engine, depsgraph, name):
     from . import legend_overlay, scene_sync
 
-    if not devices.is_loaded(name):  # the device loads (on first use compiles) every kernel
-        engine.update_stats("", "GaussVDB | loading the kernels")
-        announce_compile(engine)
-    device, t_compile = devices.final_device(name)
+    device = devices.final_device(name)
     t0 = time.perf_counter()
     scene = depsgraph.scene
     width, height = render_size(scene)
@@ -135,6 +132,11 @@ def _render_on(engine, depsgraph, name):
     engine.update_stats("", f"GaussVDB | syncing {sync.gaussians:,} Gaussians")
     device.sync(rscene)
     t_sync = time.perf_counter() - t0
+    # the kernels this scene's frames run (its mode, lights, surfaces...), loaded or on first
+    # use compiled before the frame is timed
+    engine.update_stats("", "GaussVDB | loading the kernels")
+    announce_compile(engine)
+    t_compile = device.load_kernels(scene=rscene, camera=camera, tf=tf)
 
     t1 = time.perf_counter()
     engine.update_stats("", f"GaussVDB | preparing the frame ({sync.gaussians:,} Gaussians)")

@@ -82,7 +82,7 @@ def frame(obj, size=24, direction=(1.0, 0.6, -0.4), kind="persp"):
 
 
 def device():
-    return _mod("gaussvdb_addon.engine.devices").final_device()[0]
+    return _mod("gaussvdb_addon.engine.devices").final_device()
 
 
 def check_sane(out, tf=None):

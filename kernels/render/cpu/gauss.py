@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from ...jit import njit
+from ..devices import modes
 from ..inputs.layout import (
     CB,
     CEND,
@@ -73,7 +74,6 @@ from ..inputs.layout import (
     Shading,
     V,
 )
-from ..scene.objects import Mode
 from .chords import (
     BATCH,
     OVERFLOW,
@@ -90,6 +90,7 @@ from .chords import (
     widen,
 )
 from .lit import lit_member, shade_sample
+from .per_mode import per_mode
 from .surface import field_crossing, mixture_hit
 from .vecmath import INF, _hot, add_sample, composite_sample, erf_fast, recolor, sample_color
 
@@ -334,16 +335,27 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
     return done
 
 
-@njit(**_hot, inline="always")
 def sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
-    if mode == Mode.PARTICLES:
+    """The queued chords up to ``horizon``, composited as ``mode`` draws them (sweep_particles,
+    or sweep_field for the field modes); true when the ray is done (per_mode: one of the two
+    is compiled)."""
+
+
+@per_mode(sweep)
+def _sweep(mode):
+    if modes.spec(mode).field:
+        def field(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
+            return sweep_field(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
+                               hits.act, gauss.rec, gauss.obj, scr.ro, scr.rd, objs.kind, objs.tf, objs.ls,
+                               xfer.lut, xfer.par, scr.svals, scr.sact, scr.samp, scr.acc, scr.sprev, objs,
+                               xfer, scr.wr, scr.sgrad, gauss.cw, scr.cvals)
+        return field
+
+    def particles(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
         return sweep_particles(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
                                hits.mem, hits.act, scr.cb, gauss.col, gauss.val, tau_max, gauss, objs,
                                xfer, scr)
-    return sweep_field(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
-                       hits.act, gauss.rec, gauss.obj, scr.ro, scr.rd, objs.kind, objs.tf, objs.ls,
-                       xfer.lut, xfer.par, scr.svals, scr.sact, scr.samp, scr.acc, scr.sprev, objs, xfer,
-                       scr.wr, scr.sgrad, gauss.cw, scr.cvals)
+    return particles
 
 
 @njit(**_hot)

@@ -12,9 +12,10 @@ import math
 
 import numpy as np
 
-from ...jit import njit, parallel_njit, prange
+from ...jit import njit
 from ...lod.levelset import SURFACE_LEVEL
-from ..devices.modes import LEAF_TILE_MODES, PIECE_MODES, SCREEN_TILE_MODES
+from ..devices import modes
+from ..devices.modes import LEAF_TILE_MODES, SCREEN_TILE_MODES
 from ..inputs.layout import (
     BG_DEPTH,
     CAM_CLIP,
@@ -59,6 +60,7 @@ from ..scene.objects import Mode
 from .chords import OVERFLOW
 from .fog import FOG_CHUNK, reference_fog
 from .gauss import NB, trace_gauss, trace_tiles
+from .per_mode import per_mode
 from .pieces import lut_rows, paper_piece, reference_piece  # noqa: F401  (lut_rows: for device.py)
 from .surface import mixture_normal, shade_hit
 from .vecmath import INF, _hot, _jit, composite, erf_diff, erf_span, line_integral
@@ -104,17 +106,63 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
     return 2 * n - 1
 
 
+def one_fog(mode, st, n, objs, accel, xfer, scr):
+    """Reference mode's common case, one fog volume with Emission shading and a linear transfer
+    function, drawn by the one-fog sampler (cpu.fog); false when the ray is not that case."""
+
+
+@per_mode(one_fog)
+def _one_fog(mode):
+    if modes.spec(mode).draws == modes.VOXELS:
+        def voxels(mode, st, n, objs, accel, xfer, scr):
+            tf = objs.tf[0]
+            if (accel.walk_obj.shape[0] == 1 and objs.kind[0] == Kind.FOG and objs.ctf[0] < 0
+                    and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):
+                reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
+                              accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear,
+                              scr.fog)
+                return True
+            return False
+        return voxels
+
+    def gaussians(mode, st, n, objs, accel, xfer, scr):
+        return False
+    return gaussians
+
+
+def piece(mode, st, p0, p1, ncov, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
+    """One piece [p0, p1) of a ray over its ncov covering leaves (scr.cov_obj, scr.cov_cell):
+    sampled from the voxels (reference_piece) or the Gaussians (paper_piece); true when the ray
+    has its paper-mode depth."""
+
+
+@per_mode(piece)
+def _piece(mode):
+    if modes.spec(mode).draws == modes.VOXELS:
+        def voxels(mode, st, p0, p1, ncov, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
+            reference_piece(st, p0, p1, ncov, scr.cov_obj, scr.cov_cell, scr.ro, scr.rd, objs.step,
+                            accel.bricks, accel.cell_xyz, objs.kind, objs.tf, objs.ls, xfer.lut,
+                            xfer.par, scr.samp, scr.acc, scr.sprev, objs, xfer, scr.wr, accel.cbricks)
+            return False
+        return voxels
+
+    def gaussians(mode, st, p0, p1, ncov, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
+        cov_obj = scr.cov_obj
+        for c in range(ncov):  # walk grid -> its object
+            cov_obj[c] = accel.walk_obj[cov_obj[c]]
+        paper_piece(st, p0, p1, ncov, cov_obj, scr.cov_cell, scr.ro, scr.rd, accel.cell_start,
+                    accel.cell_items, gauss.mu, gauss.inv, gauss.w, gauss.col, gauss.val,
+                    gauss.obj, gauss.volfac, k2, nsteps, maxd, scr.rclip)
+        return st[PDEPTH] >= maxd
+    return gaussians
+
+
 @njit(**_hot)
 def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     """paper / reference: piece by piece over the covering leaves."""
-    one = accel.walk_obj.shape[0] == 1  # one object's leaves: the intervals are the pieces
-    tf = objs.tf[0]
-    # one fog volume, Emission, a linear transfer function: the one-fog sampler
-    if (one and mode == Mode.REFERENCE and objs.kind[0] == Kind.FOG and objs.ctf[0] < 0
-            and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):
-        reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
-                      accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear, scr.fog)
+    if one_fog(mode, st, n, objs, accel, xfer, scr):
         return
+    one = accel.walk_obj.shape[0] == 1  # one object's leaves: the intervals are the pieces
     iv_ta, iv_tb, srt, act_iv = scr.iv_ta, scr.iv_tb, scr.srt, scr.act_iv
     cov_obj, cov_cell = scr.cov_obj, scr.cov_cell
     npieces = n if one else merged_pieces(n, iv_ta, iv_tb, srt, scr.bnd)
@@ -152,27 +200,63 @@ def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
                 ncov += 1
             if ncov == 0:
                 continue
-        if mode == Mode.PAPER:
-            for c in range(ncov):  # walk grid -> its object
-                cov_obj[c] = accel.walk_obj[cov_obj[c]]
-            paper_piece(st, p0, p1, ncov, cov_obj, cov_cell, scr.ro, scr.rd, accel.cell_start,
-                        accel.cell_items, gauss.mu, gauss.inv, gauss.w, gauss.col, gauss.val,
-                        gauss.obj, gauss.volfac, k2, nsteps, maxd, scr.rclip)
-            if st[PDEPTH] >= maxd:
-                return
-        else:
-            reference_piece(st, p0, p1, ncov, cov_obj, cov_cell, scr.ro, scr.rd, objs.step,
-                            accel.bricks, accel.cell_xyz, objs.kind, objs.tf, objs.ls, xfer.lut,
-                            xfer.par, scr.samp, scr.acc, scr.sprev, objs, xfer, scr.wr, accel.cbricks)
+        if piece(mode, st, p0, p1, ncov, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
+            return
         if st[TR] < st[TMIN] or st[HIT] > 0.0:
             return
 
 
-@njit(**_hot)
+@njit(**_hot, inline="always")
 def trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max):
     """Particles/field over the leaf cells the walk visited (several objects: by entry time)."""
     argsort_small(scr.iv_ta, scr.srt, n)  # by entry time (one object: already in order)
     return trace_gauss(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max)
+
+
+def trace_ray(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2, nsteps, maxd,
+              t_near, t_far, tau_max):
+    """One ray of pixel (i, j) through what its n walked leaf intervals (or, ``tiled``, its
+    screen tile's list accel.t_items[ta:tb]) hold, as ``mode`` draws it; 0, or OVERFLOW when
+    hits needs more rows."""
+
+
+@per_mode(trace_ray)
+def _trace_ray(mode):
+    if modes.spec(mode).pieces:
+        def pieces(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2, nsteps, maxd,
+                   t_near, t_far, tau_max):
+            trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd)
+            return 0
+        return pieces
+
+    def gaussians(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2, nsteps, maxd,
+                  t_near, t_far, tau_max):
+        if tiled:
+            return trace_tiles(mode, st, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2, t_near,
+                               t_far, tau_max)
+        return trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max)
+    return gaussians
+
+
+def gauss_normal(mode, st, ro, rd, accel, gauss, objs):
+    """A field-mode surface hit's normal, from the Gaussians around it (surface.mixture_normal);
+    the other modes' hits come with theirs."""
+
+
+@per_mode(gauss_normal)
+def _gauss_normal(mode):
+    if modes.spec(mode).field and modes.spec(mode).surfaces:
+        def field(mode, st, ro, rd, accel, gauss, objs):
+            if st[HIT] == HIT_NORMAL:
+                mixture_normal(st, ro, rd, accel.node_min, accel.node_dims, accel.node_off,
+                               accel.node_table, accel.node_cells, accel.cell_start, accel.cell_items,
+                               gauss.rec, gauss.cw, objs.sdf[int(st[HIT_OB])],
+                               objs.cbg[int(st[HIT_OB])] / SURFACE_LEVEL)
+        return field
+
+    def others(mode, st, ro, rd, accel, gauss, objs):
+        pass
+    return others
 
 
 @njit(**_jit)
@@ -257,7 +341,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
             owy = cam[CAM_POS + 1] + px * cam[CAM_ROT + 3] + py * cam[CAM_ROT + 4]
             owz = cam[CAM_POS + 2] + px * cam[CAM_ROT + 6] + py * cam[CAM_ROT + 7]
             t_near, t_far = clip0, clip1
-        n = t_start[tl + 1] - t_start[tl] if tiled else 0
+        ta, tb = (t_start[tl], t_start[tl + 1]) if tiled else (0, 0)  # the tile's list
+        n = tb - ta
         walk = not tiled
         for ob in range(n_obj):
             M = w2i[ob]
@@ -300,22 +385,10 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
         for ob in range(n_obj):
             sprev[ob, 0] = 0.0
             sprev[ob, 1] = np.nan
-        if n == 0:
-            pass
-        elif mode in PIECE_MODES:
-            trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd)
-        else:
-            if tiled:
-                rc = trace_tiles(mode, st, i, j, t_start[tl], t_start[tl + 1], gauss, objs, accel,
-                                 xfer, scr, hits, k2, t_near, t_far, tau_max)
-            else:
-                rc = trace_walk(mode, st, n, gauss, objs, accel, xfer, scr, hits, k2, t_near, t_far, tau_max)
-            if rc == OVERFLOW:
-                return p
-        if st[HIT] == HIT_NORMAL:
-            mixture_normal(st, ro, rd, accel.node_min, accel.node_dims, accel.node_off, accel.node_table,
-                           accel.node_cells, accel.cell_start, accel.cell_items, gauss.rec, gauss.cw,
-                           objs.sdf[int(st[HIT_OB])], objs.cbg[int(st[HIT_OB])] / SURFACE_LEVEL)
+        if n > 0 and trace_ray(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2,
+                               nsteps, maxd, t_near, t_far, tau_max) == OVERFLOW:
+            return p
+        gauss_normal(mode, st, ro, rd, accel, gauss, objs)
         if st[HIT] > 0.0:
             shade_hit(st, w2i[int(st[HIT_OB])], xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
         Tr = st[TR]
@@ -346,7 +419,7 @@ def new_scratch(mw, n_obj, n_walk):
                    cvals=np.empty(n_obj), fog=np.empty(FOG_CHUNK))
 
 
-@njit(**_jit)
+@njit(**_jit, inline="always")
 def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
     """nr image rows from j0 (output rows from jr0), columns [c0, c1), within one row of screen
     tiles, one tile after the other, so a tile's candidate list and the Gaussians it names stay
@@ -358,7 +431,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
     cap = 256
     hits = ray_scratch(cap)
     out.segs[jr0:jr0 + nr] = 0.0
-    p = 0
+    p = np.int64(0)  # (not the literal 0: render_pixels would compile twice)
     while True:
         p = render_pixels(p, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out, scr, hits)
         if p < 0:
@@ -367,25 +440,62 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
         hits = ray_scratch(cap)
 
 
-@parallel_njit(**_jit)
-def render_rows(mode, cam, row0, row1, col0, col1, gauss, objs, accel, xfer, out, threads):
-    """Render rows [row0, row1) and columns [col0, col1) into out (packing.Output, indexed from
-    0 = row0, col0) in bands of the screen tiles' rows (render_band), taken in the order 0, T, 2T,
-    ..., 1, T + 1, ... for T threads: prange gives each thread a contiguous block of that order,
-    so thread k draws every T-th tile row and all sample the whole image or band (an object in
-    the top half of a band would otherwise all go to one thread: F12 bands took up to 1.9x one
-    call)."""
+def _band_entry(mode):
+    """The kernel that draws a list of bands of screen-tile rows in ``mode``: its own compiled
+    code, the mode a constant all the way down (per_mode)."""
+    MODE = int(mode)  # a closure constant: numba's literal int, and part of the cache key
+
+    @njit(**_jit)
+    def draw_bands(bands, row0, row1, col0, col1, cam, gauss, objs, accel, xfer, out):
+        for q in range(bands.shape[0]):
+            j0 = max(row0, bands[q] * TILE)
+            j1 = min(row1, (bands[q] + 1) * TILE)
+            render_band(j0 - row0, j0, j1 - j0, col0, col1, MODE, cam, gauss, objs, accel, xfer, out)
+    return draw_bands
+
+
+_ENTRIES = {}  # Mode -> its band kernel (made on first use; compiled, or loaded, on first call)
+_POOL = {}  # "pool": the threads bands are drawn on (grown to the most threads asked for)
+
+
+def mode_entry(mode):
+    """The band kernel of a mode (Mode or its int)."""
+    mode = Mode(int(mode))
+    if mode not in _ENTRIES:
+        _ENTRIES[mode] = _band_entry(mode)
+    return _ENTRIES[mode]
+
+
+def band_order(row0, row1, threads):
+    """The bands of screen-tile rows over [row0, row1) in the order 0, T, 2T, ..., 1, T + 1, ...
+    for T threads, split into T contiguous blocks: thread k draws every T-th tile row and all
+    sample the whole image or band (an object in the top half of a band would otherwise all go to
+    one thread: F12 bands took up to 1.9x one call)."""
     b0 = row0 // TILE
     nb = (row1 - 1) // TILE - b0 + 1 if row1 > row0 else 0
-    order = np.empty(nb, np.int64)
-    n = 0
-    stride = max(1, threads)
-    for r in range(stride):
-        for b in range(r, nb, stride):
-            order[n] = b
-            n += 1
-    for q in prange(nb):
-        band = b0 + order[q]
-        j0 = max(row0, band * TILE)
-        j1 = min(row1, (band + 1) * TILE)
-        render_band(j0 - row0, j0, j1 - j0, col0, col1, mode, cam, gauss, objs, accel, xfer, out)
+    t = max(1, min(int(threads), nb))
+    order = np.concatenate([np.arange(r, nb, t, dtype=np.int64) for r in range(t)]) + b0
+    return [blk for blk in np.array_split(order, t) if blk.size]
+
+
+def render_rows(mode, cam, row0, row1, col0, col1, gauss, objs, accel, xfer, out, threads):
+    """Render rows [row0, row1) and columns [col0, col1) into out (packing.Output, indexed from
+    0 = row0, col0) in ``mode``, on ``threads`` threads (the kernels release the GIL; every
+    pixel is computed alone, so the image does not depend on the count). Python threads, not a
+    parallel numba loop: the loop's compilation cost a first frame ~10 s more."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    draw = mode_entry(mode)
+    blocks = band_order(row0, row1, threads)
+    args = (row0, row1, col0, col1, cam, gauss, objs, accel, xfer, out)
+    if len(blocks) <= 1:
+        for blk in blocks:
+            draw(blk, *args)
+        return
+    pool = _POOL.get("pool")
+    if pool is None or pool._max_workers < len(blocks) - 1:
+        pool = _POOL["pool"] = ThreadPoolExecutor(len(blocks) - 1, thread_name_prefix="gaussvdb-render")
+    done = [pool.submit(draw, blk, *args) for blk in blocks[1:]]
+    draw(blocks[0], *args)
+    for f in done:
+        f.result()

@@ -4,6 +4,7 @@ voxel bricks); its begin_frame makes the frame (frame.Frame) from frame_setup's 
 mode's entry in modes.py asks; its render draws bands of rows (bands.py) with pixels.render_rows."""
 from __future__ import annotations
 
+import dataclasses
 import time
 from contextlib import contextmanager
 
@@ -46,6 +47,7 @@ class CPUDevice(Device):
         self._objects, self._support_k = (), 3.0  # the synced scene's (sync)
         self._splats = SplatGrids()  # splat mode's lattices (splat_scene)
         self.stats = {}
+        self._warmed = set()  # (mode, features) of the scenes load_kernels drew
 
     @property
     def geometry_version(self) -> int:
@@ -191,14 +193,30 @@ class CPUDevice(Device):
     def end_frame(self):
         self._frame = None
 
-    def load_kernels(self):
-        from ..scene.synthetic import warm_objects
-
+    def load_kernels(self, modes=None, *, scene=None, camera=None, tf=None):
+        """Device.load_kernels: a frame of ``scene`` (with ``camera``, ``tf``), drawn at 8x8 on this
+        device (its sync is kept for the frame that follows), or, without a scene, each of
+        ``modes`` (names; None: every mode) on small synthetic objects. Each mode compiles only its
+        own kernels (cpu.per_mode); a scene's frame also those of the lights, clipping, colour
+        grids and surfaces it uses."""
         t0 = time.perf_counter()
+        if scene is not None:
+            key = (scene.mode, scene.features())
+            if key in self._warmed:
+                return 0.0
+            small = dataclasses.replace(camera, width=min(8, camera.width), height=min(8, camera.height))
+            self.render(scene, small, tf or TransferFunction.from_colormap("grayscale", 0.0, 1.0))
+            self._warmed.add(key)
+            return time.perf_counter() - t0
+        from ..scene.synthetic import warm_objects
+        from . import modes as table  # (the argument is named modes)
+
         tiny = CPUDevice(threads=self.threads)  # a throwaway: this device's state stays as it is
-        objs, cam = warm_objects()
-        for mode in ("particles", "splat"):  # splat: its lattices' and the voxel bricks' kernels too
-            tiny.render(RenderScene(objs, mode=mode), cam, TransferFunction.from_colormap("grayscale", 0.0, 1.0))
+        objs, grid_objs, cam = warm_objects()
+        gray = TransferFunction.from_colormap("grayscale", 0.0, 1.0)
+        for mode in modes or [m.name.lower() for m in table.SPECS]:
+            voxels = table.spec(mode).draws == table.VOXELS and table.spec(mode).drawn_as is None
+            tiny.render(RenderScene(grid_objs if voxels else objs, mode=mode), cam, gray)
         return time.perf_counter() - t0
 
     def _build_frame(self, spec, scene, camera, prep, lists_elsewhere):

@@ -37,8 +37,9 @@ class Device(ABC):
     def end_frame(self) -> None:
         """Drop the frame's set-up (memory); the next render() redoes it."""
 
-    def load_kernels(self) -> float:
-        """Load (or compile) the kernels once per process (seconds): first frames time only themselves."""
+    def load_kernels(self, modes=None, *, scene=None, camera=None, tf=None) -> float:
+        """Load (or compile) the kernels a frame of ``scene`` needs, or those of ``modes`` (names;
+        None: every mode), once per process (seconds): first frames time only themselves."""
         return 0.0
 
     def band_rows(self, scene: RenderScene) -> tuple:

@@ -91,6 +91,12 @@ class RenderScene:
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, not {self.mode!r}")
 
+    def features(self) -> tuple:
+        """What of the scene decides which kernels its frames run besides the mode (lights,
+        shadows, level sets and surfaces, colour grids, clipping): one frame of each compiles them."""
+        return tuple(sorted({(o.shading, bool(o.shadows), bool(o.is_level_set), bool(o.surface),
+                              o.color_tf is not None, o.clip is not None) for o in self.objects}))
+
     def geometry_key(self):
         """What sync() depends on (objects' data by identity, placement, support radius). The key
         holds the data objects themselves (so their ids cannot be reused while it lives); compare

@@ -86,9 +86,10 @@ def grid_from_dense(values, origin=(0, 0, 0), *, grid_class="fog_volume", backgr
 
 
 def warm_objects():
-    """Render objects and a camera on them that reach every kernel a frame can run (the
-    device's load_kernels): a Low and a High set of a small block, real GaussianSets (splat: a
-    coarse lattice and one of single voxels, with the dtypes imports make)."""
+    """(Gaussian objects, voxel objects, a camera on them) for a device's load_kernels: a Low
+    and a High set of a small block, real GaussianSets (splat: a coarse lattice and one of single
+    voxels, with the dtypes imports make), and the block's grid alone (the reference mode, which
+    needs no Gaussians: none are built for it)."""
     from ...lod import build_lod
     from ...lod.synthetic import grid_from_dense
     from .camera import Camera
@@ -96,4 +97,4 @@ def warm_objects():
 
     g = grid_from_dense(np.ones((16, 8, 8), np.float32))
     objs = [RenderObject(build_lod(g, lod), np.eye(4)) for lod in ("low", "high")]
-    return objs, Camera.frame_box([-3.0] * 3, [19.0] * 3, 8, 8)
+    return objs, [RenderObject(None, np.eye(4), grid=g)], Camera.frame_box([-3.0] * 3, [19.0] * 3, 8, 8)

@@ -1,0 +1,40 @@
+"""Kernels specialised per render mode, so a frame compiles its own mode's kernels and no other's.
+
+A frame's mode reaches the kernels as a compile-time constant: each mode has its own entry
+(pixels.mode_entry) that passes its mode as a literal int, and numba hands literals on to the
+kernels it calls. A call of a ``per_mode`` function then resolves, while numba types the caller,
+to the implementation its ``choose`` returns for that mode; the other modes' code is never typed
+or compiled (a reference frame used to compile every Gaussian kernel as well: 146 functions,
+about a minute on a first run).
+"""
+from __future__ import annotations
+
+import inspect
+
+from numba.core import types
+from numba.core.errors import TypingError
+from numba.extending import overload
+
+from ...mode_names import Mode
+
+
+def literal_mode(mode_type, where: str) -> Mode:
+    """The Mode a numba literal int type names; a TypingError when the mode is not a constant."""
+    if not isinstance(mode_type, types.IntegerLiteral):
+        raise TypingError(f"{where}: the render mode must be a compile-time constant "
+                          "(draw through pixels.mode_entry)")
+    return Mode(mode_type.literal_value)
+
+
+def per_mode(stub):
+    """Decorator of ``choose(mode: Mode) -> implementation``: calls of ``stub`` (a plain function
+    whose first argument is the mode) from jitted code run that implementation, inlined. The
+    implementation takes the stub's arguments."""
+    def register(choose):
+        def typer(*args):
+            return choose(literal_mode(args[0], stub.__name__))
+
+        typer.__signature__ = inspect.signature(stub)  # numba checks implementations against it
+        overload(stub, inline="always", prefer_literal=True)(typer)
+        return choose
+    return register
