@@ -7,6 +7,10 @@ OpenMP, e.g. on stock macOS) two threads inside parallel regions at once abort t
 ("Concurrent access has been detected"). The viewport worker and a final render can do exactly
 that, so parallel kernels launch one at a time on every layer; the serial, nogil kernels do not
 need it. Parallel kernels are entry points: they are called from Python, never from other kernels.
+
+One signature per kernel: numba compiles a kernel again for every distinct argument type its
+callers pass, and a literal is a type of its own (f(x, 8) and f(x, n) compile f twice; so do a
+read-only and a writable array). Call sites pass np.int64(8), and files map writable.
 """
 from __future__ import annotations
 

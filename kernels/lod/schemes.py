@@ -32,7 +32,7 @@ SCHEME_CODES = {"low": LOW, "medium": MEDIUM, "high": HIGH, "variance": VARIANCE
 
 @njit(cache=True, inline="always")
 def _unpack(mask_row, bits):
-    n = 0
+    n = np.int64(0)  # (a literal 0 would reach _leaf_emit as its own signature)
     for w in range(8):
         m = mask_row[w]
         for b in range(64):
@@ -117,7 +117,7 @@ def _leaf_emit(scheme, bits, nact, vals, write, pos, c2, ext, nvox, val, full_bl
                         if not bits[x * 64 + y * 8 + z]:
                             full = False
             if full:
-                _block(write, k, c2, ext, nvox, val, full_block, bits, vals, x0, y0, z0, 2)
+                _block(write, k, c2, ext, nvox, val, full_block, bits, vals, x0, y0, z0, np.int64(2))
                 k += 1
             else:
                 for x in range(x0, x0 + 2):
@@ -298,7 +298,7 @@ def count_leaves(kept, values, order, scheme, thr_sp, thr_v2):
         bits = np.empty(512, np.bool_)
         nact = _unpack(kept[i], bits)
         stack = np.empty((64, 6), np.int64)
-        counts[i] = _leaf_emit(scheme, bits, nact, values[order[i]], False, 0, d8, d8, d1, df, du,
+        counts[i] = _leaf_emit(scheme, bits, nact, values[order[i]], False, np.int64(0), d8, d8, d1, df, du,
                                thr_sp, thr_v2, stack)
     return counts
 
@@ -357,7 +357,7 @@ def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, paper, s
                 _high_leaf(kept[i], values[order[i]], starts[i], paper, scale, out)
                 continue
             nact = _unpack(kept[i], bits)
-            cnt = _leaf_emit(scheme, bits, nact, values[order[i]], True, 0, c2, ext, nvox, val,
+            cnt = _leaf_emit(scheme, bits, nact, values[order[i]], True, np.int64(0), c2, ext, nvox, val,
                              full_block, thr_sp, thr_v2, stack)
             for q in range(cnt):
                 shape = gaussian_shape(ext[q, 0], ext[q, 1], ext[q, 2], full_block[q],

@@ -280,7 +280,7 @@ def zlib_uncompress():
             try:
                 import zlib
                 want = np.arange(3000, dtype=np.uint16).tobytes()
-                raw = np.frombuffer(zlib.compress(want), np.uint8)
+                raw = np.frombuffer(bytearray(zlib.compress(want)), np.uint8)  # writable, as files map
                 pool = np.zeros(len(want), np.uint8)
                 status = np.ones(1, np.uint8)
                 _inflate_serial(1, fn, raw, np.zeros(1, np.int64), np.zeros(1, np.int64),

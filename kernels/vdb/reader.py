@@ -61,7 +61,9 @@ def _load(path):
             size = os.fstat(f.fileno()).st_size
             if size == 0:
                 raise VDBFormatError("empty file", p, offset=0)
-            return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+            # copy-on-write, never written: its arrays are writable, so a kernel that also
+            # reads scratch arrays compiles once (numba types read-only arrays apart)
+            return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_COPY)
     except OSError as e:
         raise VDBFormatError(f"cannot open: {e.strerror}", p) from None
 

@@ -243,7 +243,7 @@ def _codec(buf, pos, end, nslots, vmask, nc, fsz, half, mask_comp, comp, lut, bg
         if pos + nslots // 8 > end:
             return False, pos, data, val0, val1, sel
         for w in range(nslots // 64):
-            sel[w] = _full_bits(buf, pos + 8 * w, 8)
+            sel[w] = _full_bits(buf, pos + 8 * w, np.int64(8))
         pos += nslots // 8
     count = nslots
     if mask_comp and code != 6:
@@ -266,7 +266,7 @@ def _codec(buf, pos, end, nslots, vmask, nc, fsz, half, mask_comp, comp, lut, bg
     if comp != 0:
         if pos + 8 > end:
             return False, pos, data, val0, val1, sel
-        size = np.int64(_full_bits(buf, pos, 8))
+        size = np.int64(_full_bits(buf, pos, np.int64(8)))
         pos += 8
         o = pos
         if size <= 0:
@@ -328,7 +328,7 @@ def _walk(buf, pos, end, nchild, nc, fsz, half, mask_comp, comp, lut, bg, sxyz, 
         if pos + 12 > end:
             return fail
         for k in range(3):
-            v = np.int64(_full_bits(buf, pos + 4 * k, 4))
+            v = np.int64(_full_bits(buf, pos + 4 * k, np.int64(4)))
             origin[k] = v - (v >> 31 << 32)  # int32
             if origin[k] % 4096:
                 return fail

@@ -360,7 +360,7 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
                                 min(t_far, rclip[ob, 1]), accel.node_min[ob], accel.node_dims[ob],
                                 accel.node_off[ob], accel.node_table, accel.node_cells,
                                 accel.node_box, accel.cell_skip, ob, scr.iv_ta, scr.iv_tb, scr.iv_obj, scr.iv_cell,
-                                n, accel.max_walk, 1)
+                                n, accel.max_walk, np.int64(1))  # (not a literal 1: one signature)
         for w in range(n_obj, accel.walk_obj.shape[0] if walk else 0):  # the coarse levels' grids
             ob = accel.walk_obj[w]
             n = walk_object(ro[ob, 0], ro[ob, 1], ro[ob, 2], rd[ob, 0], rd[ob, 1], rd[ob, 2],
@@ -428,7 +428,7 @@ def render_band(jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, out):
     out of render_rows' prange body on purpose: per-pixel calls made from inside a parfor body
     with many array arguments measured ~18 us each here."""
     scr = new_scratch(accel.max_walk, objs.w2i.shape[0], accel.walk_obj.shape[0])
-    cap = 256
+    cap = np.int64(256)  # (not a literal: ray_scratch compiles once)
     hits = ray_scratch(cap)
     out.segs[jr0:jr0 + nr] = 0.0
     p = np.int64(0)  # (not the literal 0: render_pixels would compile twice)

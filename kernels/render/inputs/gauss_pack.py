@@ -40,7 +40,7 @@ def _counts(start, origins, offsets, sigmas, amps):
     for gi in prange(ng):
         c = 0
         for i in range(start[gi], start[gi + 1]):
-            c += _gaussian(origins, gi, offsets, sigmas, amps, i)[0]
+            c += _gaussian(origins, np.int64(gi), offsets, sigmas, amps, i)[0]
         cnt[gi] = c
     return cnt
 
@@ -63,7 +63,7 @@ def _fill(start, first, origins, offsets, sigmas, amps, values, cvalues, k, max_
             gbox[gi, 3, a] = -np.inf
         j = first[gi]
         for i in range(start[gi], start[gi + 1]):
-            ok, ms, ss, w = _gaussian(origins, gi, offsets, sigmas, amps, i)
+            ok, ms, ss, w = _gaussian(origins, np.int64(gi), offsets, sigmas, amps, i)
             if not ok:
                 continue
             for a in range(3):
