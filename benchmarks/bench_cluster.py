@@ -10,8 +10,10 @@ command a user runs, in a process of its own, into an empty output folder: `--wo
 numba thread each), `--workers 1` (one thread), and the serial run with 2 threads; the rounds
 interleave them (the machine's load drifts). Per configuration the median wall seconds (cluster
 start-up, each worker's Blender or kernels' loading included), the median span from the first
-frame's start to the last frame's end (the frames alone), and each worker's peak resident memory
-with what its first frame and the later ones added to it.
+frame's start to the last frame's end (the frames alone), each worker's peak resident memory
+with what its first frame and the later ones added to it, and the memory it holds between
+frames (resident after its second frame and after its last: equal when it does not grow with
+the frames drawn).
 """
 from __future__ import annotations
 
@@ -78,17 +80,20 @@ def run(argv):
 
 
 def memory(res):
-    """Per worker: (peak resident bytes, added by its first frame, most added by a later one)."""
+    """Per worker: (peak resident bytes, added by its first frame, most added by a later one,
+    resident after its second frame (its first when it drew one), resident after its last)."""
     out = {}
     for f in sorted(res["frames"], key=lambda i: i.get("started", 0)):
         w = f.get("worker")
         if not w:
             continue
-        peak, first, later = out.get(w, (0, None, 0))
+        peak, first, later, n, second, _ = out.get(w, (0, None, 0, 0, 0, 0))
         added = f["peak_rss_bytes"] - f["rss_before_bytes"]
+        held = f.get("rss_after_bytes", 0)
         out[w] = (max(peak, f["peak_rss_bytes"]), added if first is None else first,
-                  later if first is None else max(later, added))
-    return out
+                  later if first is None else max(later, added), n + 1,
+                  held if n < 2 else second, held)
+    return {w: m[:3] + m[4:] for w, m in out.items()}
 
 
 def main(argv=None):
@@ -119,7 +124,9 @@ def main(argv=None):
                       "wall_all": row["wall"], "frames_s": statistics.median(row["frames"]),
                       "peak_rss_mb": [round(m[0] / 2**20) for m in mem.values()],
                       "first_frame_added_mb": [round(m[1] / 2**20, 1) for m in mem.values()],
-                      "later_frame_added_mb": [round(m[2] / 2**20, 1) for m in mem.values()]})
+                      "later_frame_added_mb": [round(m[2] / 2**20, 1) for m in mem.values()],
+                      "held_mb": [(round(m[3] / 2**20), round(m[4] / 2**20))
+                                  for m in mem.values()]})
     speedups = {}
     for kind in {t["kind"] for t in table}:
         by = {t["config"]: t for t in table if t["kind"] == kind}
@@ -138,11 +145,12 @@ def main(argv=None):
           f"{a.lod}, render {a.size}), {a.rounds} interleaved rounds, {os.cpu_count()} cores, "
           f"load {' '.join(load)} at the end")
     print(f"{'':8} {'config':<10} {'wall s':>7} {'frames s':>9}  peak MB / worker   "
-          "first frame +MB   later frame +MB")
+          "first frame +MB   later frame +MB    held MB after 2nd, last frame")
     for t in table:
+        held = ", ".join(f"{a}->{b}" for a, b in t["held_mb"])
         print(f"{t['kind']:<8} {t['config']:<10} {t['wall_s']:7.2f} {t['frames_s']:9.2f}  "
               f"{str(t['peak_rss_mb']):<18} {str(t['first_frame_added_mb']):<16} "
-              f"{t['later_frame_added_mb']}")
+              f"{str(t['later_frame_added_mb']):<18} {held}")
     for k, v in sorted(speedups.items()):
         print(f"speed-up {k}: {v:.2f}x")
     return 0

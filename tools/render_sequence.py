@@ -101,6 +101,13 @@ def prepare(args) -> dict:
     vol.frame_duration = max(frames[-1], inside[-1]) - inside[0] + 1
     vol.sequence_mode = "CLIP"
     scene = build_scene(bpy, objs, args, box=sequence_box)
+    # The engine keeps converted frames for playback, up to the scene's memory budget (2 GB by
+    # default). A render draws each frame once, in order: with no budget only the frame being
+    # drawn stays (a frame held past the last file is that same entry), so a process rendering
+    # many frames (a cluster worker) holds one frame's Gaussians, not every frame it has drawn.
+    # A frame cache of an earlier run in this process is dropped with it.
+    scene.gaussvdb.sequence_memory = 0.0
+    addon_module("gaussvdb_addon.engine.sequence_frames").CACHE.clear()
     return {"pattern": pat, "frames": frames, "grid": grid, "scene": scene,
             "image_file": image_file, "seconds_import": seconds_import}
 

@@ -252,3 +252,55 @@ def test_scheduler_and_workers_equal_serial_survive_a_killed_worker(bpy_module, 
     assert len(same_images(tmp_path / "serial", out)) == 6 and not res["errors"]
     assert not [n for n in os.listdir(out) if ".tmp" in n]
     assert workers[0].wait(timeout=30) == -signal.SIGKILL
+
+
+# One render worker's frames in one process, as a Dask worker runs them (cluster_tasks.render_frame
+# called in turn), with what it holds printed after each frame.
+_WORKER_FRAMES = r"""
+import json, os, sys, tracemalloc
+root, pattern, out, count = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+sys.path[:0] = [os.path.join(root, "tools"), root]
+import cluster_tasks, cmd_render
+args = cmd_render.parse([pattern, "--lod", "medium", "--size", "64x48", "--threads", "1",
+                         "--out", os.path.join(out, "f_####.png")])
+tracemalloc.start()
+for f in range(1, count + 1):
+    item = cluster_tasks.render_frame(args, "run", f, os.path.join(out, f"f_{f:04d}.png"))
+    import bpy
+    from blender_session import addon_module
+    cache = addon_module("gaussvdb_addon.engine.sequence_frames").CACHE
+    kinds = ("objects", "meshes", "pointclouds", "volumes", "images", "materials", "textures",
+             "node_groups", "collections", "cameras", "lights", "worlds", "scenes")
+    print(json.dumps({"frame": f, "error": item.get("error"), "gaussians": item.get("gaussians"),
+                      "cache_entries": len(cache), "cache_bytes": cache.nbytes,
+                      "datablocks": {k: len(getattr(bpy.data, k)) for k in kinds},
+                      "orphans": sum(1 for k in kinds for d in getattr(bpy.data, k) if d.users == 0),
+                      "traced_bytes": tracemalloc.get_traced_memory()[0],
+                      "rss_bytes": item["rss_after_bytes"]}), flush=True)
+"""
+
+
+def test_render_worker_memory_does_not_grow_with_frames(tmp_path):
+    """A render worker keeps its Blender session across frames; what it holds after a frame is
+    one frame's, not every frame's it has drawn: the engine's frame cache keeps one entry, no
+    datablock is added or orphaned, the memory Python allocators (numpy included) hold and the
+    resident memory are those of two frames earlier (the same source file)."""
+    n = 6
+    pattern = write_sequence(str(tmp_path / "seq"), n)
+    proc = subprocess.run([sys.executable, "-c", _WORKER_FRAMES, ROOT, pattern,
+                           str(tmp_path / "out"), str(n)], cwd=ROOT, env=_env(),
+                          capture_output=True, text=True, timeout=TIMEOUT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = [json.loads(ln) for ln in proc.stdout.splitlines() if ln.startswith('{"frame"')]
+    assert [r["frame"] for r in rows] == list(range(1, n + 1))
+    assert all(not r["error"] and r["gaussians"] > 0 for r in rows)
+    assert sorted(os.listdir(tmp_path / "out")) == [f"f_{f:04d}.png" for f in range(1, n + 1)]
+    for r in rows:
+        assert r["cache_entries"] == 1, r  # the frame being drawn, not the ones before
+        assert r["datablocks"] == rows[0]["datablocks"] and r["orphans"] == 0, r
+    for a, b in zip(rows[1:], rows[3:]):  # frames 2 and 4, 3 and 5, 4 and 6: the same source file
+        assert b["cache_bytes"] == a["cache_bytes"], (a, b)
+        # the engine's and the device's buffers of one frame, whichever frame it is
+        assert b["traced_bytes"] - a["traced_bytes"] < 256 * 1024, (a, b)
+    # resident memory: settled after the second frame (allowance for the allocators)
+    assert rows[-1]["rss_bytes"] - rows[1]["rss_bytes"] < 48 * 2**20, rows
