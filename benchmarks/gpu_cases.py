@@ -150,7 +150,7 @@ def main(argv=None):
     ap.add_argument("--lods", default="low,medium,high")
     ap.add_argument("--sizes", default="512x512,1920x1080")
     ap.add_argument("--cpu-sizes", default="512x512", help="the views with the CPU device's image "
-                    "(PSNR measured there; 'all': every size)")
+                    "(PSNR measured there; 'all': every size, as --synthetic's one 48x48 view)")
     ap.add_argument("--synthetic", action="store_true")
     a = ap.parse_args(argv)
     from blender_session import addon_module, start
@@ -166,7 +166,7 @@ def main(argv=None):
         if m not in MODES:
             raise SystemExit(f"gpu_cases: unknown mode {m!r} (choose from {','.join(MODES)})")
     sizes = parse_sizes(a.sizes)
-    cpu_views = None if a.cpu_sizes == "all" else set(parse_sizes(a.cpu_sizes))
+    cpu_views = None if a.cpu_sizes == "all" or a.synthetic else set(parse_sizes(a.cpu_sizes))
     os.makedirs(a.out, exist_ok=True)
     cpu = CPUDevice()
     if a.synthetic:
