@@ -40,6 +40,28 @@ class TooMany(Exception):
     """The screen-tile lists pass what this GPU's textures hold: the device takes the CPU's."""
 
 
+_POOLS = {}
+
+
+class Pool:
+    """A folder's pool of shared tables (gpu_pack.py): each stored as its bytes' planes."""
+
+    def __init__(self, folder):
+        self.z = np.load(os.path.join(folder, "pool.tables"), allow_pickle=False)
+        self.index = json.loads(str(self.z["index.json"]))
+
+    def __getitem__(self, key):
+        dtype, shape = self.index[key]
+        return np.ascontiguousarray(self.z[key].T).view(np.dtype(dtype)).reshape(shape)
+
+
+def pool(folder):
+    """A folder's Pool, opened once."""
+    if folder not in _POOLS:
+        _POOLS[folder] = Pool(folder)
+    return _POOLS[folder]
+
+
 class Case:
     """A saved frame (gpu_case.save): its tables per view, ints, programs, CPU images."""
 
@@ -51,22 +73,41 @@ class Case:
         asm = assembly()
         self.program = asm.from_json(self.info["program"]) if "program" in self.info else None
         self.tile_programs = {s: asm.from_json(p) for s, p in self.info.get("tile_programs", {}).items()}
+        self._read = {}
+        self.pooled = self.info.get("pooled", {})  # (gpu_pack.py: arrays in the folder's pool)
+        self.files = set(self.z.files) | set(self.pooled)
+
+    def array(self, key):
+        """An array of the file or its folder's pool, decompressed once (the views share most
+        tables)."""
+        if key not in self._read:
+            if key in self.pooled:
+                self._read[key] = pool(os.path.dirname(os.path.abspath(self.path)))[self.pooled[key]]
+            else:
+                self._read[key] = self.z[key]
+        return self._read[key]
 
     def tables(self, view):
         """{name: array} the mode's shader samples for this view."""
         out = {}
-        for key in self.z.files:
+        for key in sorted(self.files):
             if key.startswith("t."):
                 name = key[2:]
                 own = f"{view}.t.{name}"
-                out[name] = self.z[own] if own in self.z.files else self.z[key]
+                out[name] = self.array(own if own in self.files else key)
         return out
 
     def tile_inputs(self, view):
-        return {"tl_g": self.z["tiles.tl_g"], "tl_par": self.z[f"{view}.tiles.tl_par"]}
+        return {"tl_g": self.array("tiles.tl_g"), "tl_par": self.array(f"{view}.tiles.tl_par")}
 
     def cpu(self, view):
-        return self.z[f"{view}.cpu"]
+        """The CPU device's Combined pass of a view, (H, W, 4) float32 (case.pack_image's planes
+        unpacked: the values rounded as saved; cpu_floor_db says by how much)."""
+        a = self.z[f"{view}.cpu"]
+        if a.dtype == np.float32:  # (saved before the images were packed)
+            return a
+        v = self.views[view]
+        return np.ascontiguousarray(a.T).view(np.float32).reshape(v["height"], v["width"], 4)
 
     def define(self, name):
         return dict(self.program.defines)[name]
@@ -150,9 +191,19 @@ class Frame:
         self.w, self.h = v["width"], v["height"]
         self.tex = {}
         self.out = None
+        self._arrays = self._tile_in = None
+
+    def read_tables(self):
+        """The view's tables and tile inputs read from the file once (decompressed: CPU work,
+        kept out of the upload's and the lists' times)."""
+        if self._arrays is None:
+            self._arrays = self.case.tables(self.view)
+            if self.case.info["on_gpu_tiles"]:
+                self._tile_in = self.case.tile_inputs(self.view)
+        return self._arrays
 
     def upload(self):
-        self.tex = self.gl.upload(self.case.tables(self.view))
+        self.tex = self.gl.upload(self.read_tables())
         self.gl.ctx.finish()
 
     def lists(self):
@@ -168,7 +219,8 @@ class Frame:
         limit = gl.max_texture
         if max(ntx, nty) > limit or -(-m // row) > limit:
             raise TooMany(f"{ntx}x{nty} tiles, {m} Gaussians")
-        tex = gl.upload(case.tile_inputs(self.view))
+        self.read_tables()
+        tex = gl.upload(self._tile_in)
 
         def table(n):
             return gl.image(row, max(1, -(-n // row)))

@@ -1,16 +1,21 @@
 """GPU frames saved as files (kernels/render/gpu/case.py's ``.npz``, one per file, mode and LOD,
-with one view per image size and the CPU device's image of each): scenes synced here through the
-CPU device's packing and the GPU device's frame set-up (numba, the bpy module), for the
-standalone OpenGL backend (benchmarks/gl_backend.py) and the GPU machine's run (gpu_real.py).
+with one view per image size and the CPU device's image of the views in --cpu-sizes): scenes
+synced here through the CPU device's packing and the GPU device's frame set-up (numba, the bpy
+module), for the standalone OpenGL backend (benchmarks/gl_backend.py) and the GPU machine's run
+(gpu_real.py).
 
     python benchmarks/gpu_cases.py OUT [FILES.vdb ...] [--modes reference,splat,particles,field,paper]
                                    [--lods low,medium,high] [--sizes 512x512,1920x1080]
-                                   [--synthetic]
+                                   [--cpu-sizes 512x512] [--synthetic]
 
 Default files: the shared data (../shared/data). Reference mode draws the voxels: one case per
-file (no LOD). --synthetic: the small written scenes the equality test uses (a fog volume, a level
-set, two objects, a lit volume, a volume coloured by a second grid). Prints one line per case:
-its size and the GPU device's fallback where it hands the frame to the CPU device."""
+file (no LOD). The two sizes of a case share its tables (only the camera's and the tile lists'
+inputs differ); the CPU device's image, what PSNR is measured against, is saved at 512x512 only
+by default (packed: kernels/render/gpu/case.py), which shrinks what the GPU machine's calls carry
+(gpu_pack.py shares the set out among them). --synthetic: the small
+written scenes the equality test uses (a fog volume, a level set, two objects, a lit volume, a
+volume coloured by a second grid). Prints one line per case: its size and the GPU device's
+fallback where it hands the frame to the CPU device; writes OUT/sizes.json ({case file: bytes})."""
 from __future__ import annotations
 
 import argparse
@@ -93,15 +98,17 @@ def synthetic_scene(name, mode, lod="medium"):
 
 
 # -- saving ----------------------------------------------------------------------------------------
-def save_case(gdev, path, scene, cams, tf, meta, cpu=None):
+def save_case(gdev, path, scene, cams, tf, meta, cpu=None, cpu_views=None):
     """One case file of a scene at each camera (gpu_case.save) from the GPU device's frame set-up
     (gdev: a GPUDevice; no GPU context needed); cpu: a CPUDevice for the images beside the tables
-    (None: none saved). Returns the GPU device's fallback (then no file) or None."""
+    (None: none saved), of the cameras whose (width, height) is in cpu_views (None: every one).
+    Returns the GPU device's fallback (then no file) or None."""
     from kernels.render.gpu import case as gpu_case
 
     def views():
         for cam in cams:
-            image = cpu.render(scene, cam, tf)["Combined"] if cpu is not None else None
+            want = cpu is not None and (cpu_views is None or (cam.width, cam.height) in cpu_views)
+            image = cpu.render(scene, cam, tf)["Combined"] if want else None
             frame = gdev.begin_frame(scene, cam, tf)
             name, spec = gdev._spec(frame)
             yield frame, name, spec, image
@@ -115,11 +122,24 @@ def save_case(gdev, path, scene, cams, tf, meta, cpu=None):
 
 
 def shared_cases(files, modes, lods):
-    """(file, mode, lod) per case: reference once per file (its voxels), the others per LOD."""
+    """(file, mode, lod) per case: reference once per file (its voxels, with the Low LOD's
+    load), the others per LOD; ordered by file and LOD, so each LOD is built once."""
     for f in files:
-        for mode in modes:
-            for lod in (("voxels",) if mode == "reference" else lods):
-                yield f, mode, lod
+        for lod in lods:
+            for mode in modes:
+                if mode == "reference":
+                    if lod == lods[0]:
+                        yield f, mode, "voxels"
+                else:
+                    yield f, mode, lod
+
+
+def case_name(src, mode, lod):
+    return f"{os.path.splitext(os.path.basename(src))[0].replace(' ', '_')}.{mode}.{lod}.npz"
+
+
+def parse_sizes(text):
+    return [tuple(int(v) for v in s.split("x")) for s in text.split(",") if s]
 
 
 def main(argv=None):
@@ -129,6 +149,8 @@ def main(argv=None):
     ap.add_argument("--modes", default=",".join(MODES))
     ap.add_argument("--lods", default="low,medium,high")
     ap.add_argument("--sizes", default="512x512,1920x1080")
+    ap.add_argument("--cpu-sizes", default="512x512", help="the views with the CPU device's image "
+                    "(PSNR measured there; 'all': every size, as --synthetic's one 48x48 view)")
     ap.add_argument("--synthetic", action="store_true")
     a = ap.parse_args(argv)
     from blender_session import addon_module, start
@@ -143,7 +165,8 @@ def main(argv=None):
     for m in modes:
         if m not in MODES:
             raise SystemExit(f"gpu_cases: unknown mode {m!r} (choose from {','.join(MODES)})")
-    sizes = [tuple(int(v) for v in s.split("x")) for s in a.sizes.split(",") if s]
+    sizes = parse_sizes(a.sizes)
+    cpu_views = None if a.cpu_sizes == "all" or a.synthetic else set(parse_sizes(a.cpu_sizes))
     os.makedirs(a.out, exist_ok=True)
     cpu = CPUDevice()
     if a.synthetic:
@@ -152,10 +175,14 @@ def main(argv=None):
         files = a.files or sorted(os.path.join(DATA_DIR, f) for f in os.listdir(DATA_DIR) if f.endswith(".vdb"))
         cases = list(shared_cases(files, modes, [x for x in a.lods.split(",") if x]))
     loaded = {}
+    record = os.path.join(a.out, "sizes.json")
+    sizes_json = {}
+    if os.path.exists(record):
+        with open(record) as f:
+            sizes_json = json.load(f)
     for src, mode, lod in cases:
         t = time.perf_counter()
-        stem = os.path.splitext(os.path.basename(src))[0].replace(" ", "_")
-        path = os.path.join(a.out, f"{stem}.{mode}.{lod}.npz")
+        path = os.path.join(a.out, case_name(src, mode, lod))
         if a.synthetic:
             sc, cam, tf = synthetic_scene(src, mode, lod)
             cams = [cam]
@@ -170,13 +197,17 @@ def main(argv=None):
                 sc, cam, tf = frame_setup(g, gs, (w, h), mode)
                 cams.append(cam)
         meta = {"source": os.path.basename(src), "mode_asked": mode, "lod": lod}
-        why = save_case(GPUDevice(), path, sc, cams, tf, meta, cpu)
-        size = os.path.getsize(path) / 2 ** 20 if why is None else 0.0
-        print(json.dumps({"case": os.path.basename(path), "MiB": round(size, 2), "fallback": why,
-                          "seconds": round(time.perf_counter() - t, 1)}), flush=True)
+        why = save_case(GPUDevice(), path, sc, cams, tf, meta, cpu, cpu_views)
         if why is not None:  # the GPU run counts it
-            with open(path[:-4] + ".fallback.json", "w") as f:
+            path = path[:-4] + ".fallback.json"
+            with open(path, "w") as f:
                 json.dump(dict(meta, fallback=why), f)
+        sizes_json[os.path.basename(path)] = os.path.getsize(path)
+        with open(record, "w") as f:
+            json.dump(dict(sorted(sizes_json.items())), f, indent=0)
+        print(json.dumps({"case": os.path.basename(path), "MiB": round(os.path.getsize(path) / 2 ** 20, 2),
+                          "fallback": why, "seconds": round(time.perf_counter() - t, 1)}), flush=True)
+    print(json.dumps({"cases": len(sizes_json), "MiB": round(sum(sizes_json.values()) / 2 ** 20, 2)}))
     return 0
 
 

@@ -2,8 +2,16 @@
 file x mode x LOD, a view per image size) drawn by the standalone OpenGL backend (gl_backend.py)
 as the GPU device draws it.
 
-    python benchmarks/gpu_real.py prepare CASES [--wheels .whl]    # here: the wheels for Python 3.12
-    python benchmarks/gpu_real.py run CASES OUT [--budget-s 420]   # there (benchmarks/gpu_real.sh)
+    python benchmarks/gpu_real.py prepare [--wheels .whl]          # here: wheels for Python 3.12
+    python benchmarks/gpu_real.py payload FOLDER                   # what a call carrying FOLDER
+                                                                   # carries, in MiB (1: too much)
+    python benchmarks/gpu_real.py run CASES OUT [--budget-s 420] [--views 512x512] [--warm 3]
+                                  [--timed 20]                     # there (benchmarks/gpu_real.sh)
+
+A run on the GPU machine carries the repository's working tree (tracked files and untracked ones
+git does not ignore), one folder of the cases (gpu_pack.py's .carry/N, from gpu_cases.py's), the
+wheels (.whl) and, where the machine lacks EGL, the GL/EGL packages (.gl): 64 MiB in all per call
+(CARRY_LIMIT); ``payload`` adds them up and fails past CARRY_LIMIT less MARGIN.
 
 Per case and view: the upload of the scene's tables (ms, wall clock to glFinish, median of 3), the
 screen-tile lists' three passes with their counts' readback (ms, wall clock, median of 5; the
@@ -14,8 +22,10 @@ image saved in the case (tiles the device would redraw on the CPU taken from it,
 Every fallback to the CPU device is counted: frames the GPU device hands to it (saved beside the
 cases as CASE.fallback.json), tile lists past this GPU's textures (the device then uploads the
 CPU's, which the case does not hold: not timed), tables past its texture size, screen tiles
-redrawn on the CPU. Writes OUT/gpu_real.json and OUT/gpu_real.md; cases not started within
---budget-s are listed as skipped.
+redrawn on the CPU (a ray past the 160 hit slots of the chord cap, or a loop cut short): per
+row in ``fallbacks`` and summed over the run. Each row also gives its CPU seconds apart (reading
+the case, PSNR) from the GL work, for scaling a software run to a GPU. Writes OUT/gpu_real.json
+and OUT/gpu_real.md; cases not started within --budget-s are listed as skipped.
 """
 from __future__ import annotations
 
@@ -36,18 +46,59 @@ sys.path.insert(0, HERE)
 NVIDIA_EGL = "/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json"
 WHEELS = ("moderngl==5.13.0", "glcontext==3.1.0")
 WARM, TIMED = 3, 20
+ROOT = os.path.dirname(HERE)
+CARRY_LIMIT = 64 * 2 ** 20  # what one call to the GPU machine carries: working tree + carried paths
+MARGIN = 4 * 2 ** 20
+FALLBACKS = ("frame_to_cpu", "cpu_tile_lists", "texture_too_large", "chord_cap_tiles")
 
 
-def prepare(cases, wheels):
-    """Download the moderngl and glcontext wheels for the GPU machine's Python 3.12; print what a
-    run carries (cases and wheels must stay under 64 MiB together)."""
+def tree_bytes(root=ROOT):
+    """The working tree that travels: tracked files and untracked ones git does not ignore."""
+    out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                         cwd=root, capture_output=True)
+    if out.returncode != 0:  # (not a git checkout: every file but the environment)
+        return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(root)
+                   if ".venv" not in d and "/.git" not in d for f in fs)
+    names = [n for n in out.stdout.decode().split("\0") if n]
+    return sum(os.path.getsize(os.path.join(root, n)) for n in names
+               if os.path.isfile(os.path.join(root, n)) and not os.path.islink(os.path.join(root, n)))
+
+
+def folder_bytes(path):
+    if not os.path.isdir(path):
+        return 0
+    return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(path) for f in fs)
+
+
+def payload(cases, wheels=".whl", gl=".gl", root=ROOT):
+    """{part: bytes} of what one run carries, and 'total'."""
+    parts = {"working tree": tree_bytes(root)}
+    for name in (cases, wheels, gl):
+        parts[name] = folder_bytes(os.path.join(root, name))
+    parts["total"] = sum(parts.values())
+    return parts
+
+
+def prepare(wheels):
+    """Download the moderngl and glcontext wheels for the GPU machine's Python 3.12."""
     os.makedirs(wheels, exist_ok=True)
+    plats = [a for p in ("manylinux2014_x86_64", "manylinux_2_17_x86_64", "manylinux_2_28_x86_64",
+                         "manylinux1_x86_64", "manylinux_2_5_x86_64") for a in ("--platform", p)]
     subprocess.run([sys.executable, "-m", "pip", "download", "--only-binary=:all:", "--no-deps",
-                    "--python-version", "3.12", "--platform", "manylinux2014_x86_64",
-                    "--platform", "manylinux_2_17_x86_64", *WHEELS, "-d", wheels], check=True)
-    files = sorted(glob.glob(os.path.join(cases, "*.npz"))) + sorted(glob.glob(os.path.join(wheels, "*.whl")))
-    mib = sum(os.path.getsize(f) for f in files) / 2 ** 20
-    print(f"{len(files)} files, {mib:.1f} MiB to carry" + ("" if mib < 60 else ": over 60 MiB, split the cases"))
+                    "--python-version", "3.12", "--implementation", "cp", *plats, *WHEELS, "-d", wheels],
+                   check=True)
+    print(f"{folder_bytes(wheels) / 2 ** 20:.2f} MiB of wheels in {wheels}")
+    return 0
+
+
+def report_payload(cases, wheels=".whl", gl=".gl"):
+    """Print what one call carrying these cases carries, in MiB; 1 where past the limit."""
+    parts = payload(cases, wheels, gl)
+    print(json.dumps({k: round(v / 2 ** 20, 2) for k, v in parts.items()}) + " MiB")
+    if parts["total"] > CARRY_LIMIT - MARGIN:
+        print(f"over {(CARRY_LIMIT - MARGIN) / 2 ** 20:.0f} MiB: carry fewer cases per call")
+        return 1
+    return 0
 
 
 def psnr(a, b):
@@ -65,34 +116,43 @@ def wall_ms(fn, gl, n):
     return statistics.median(out)
 
 
-def measure(gl, path, view, fallbacks):
-    """One row: the case's view drawn and timed (see the docstring)."""
+def measure(gl, case, view, fallbacks, warm=WARM, timed=TIMED):
+    """One row: the case's view drawn and timed (see the docstring); fallbacks: the run's
+    counts, added to (the row has its own)."""
     import gl_backend as B
 
-    case = B.Case(path)
+    t0 = time.perf_counter()
     info = case.info
-    row = {"case": os.path.basename(path), "source": info.get("source"), "mode": info["mode"],
+    mine = dict.fromkeys(FALLBACKS, 0)
+    row = {"case": os.path.basename(case.path), "source": info.get("source"), "mode": info["mode"],
            "mode_asked": info.get("mode_asked"), "lod": info.get("lod"), "view": view,
-           "gaussians": info["gaussians"]}
+           "gaussians": info["gaussians"], "fallbacks": mine}
+
+    def fell(kind, n=1):
+        mine[kind] += n
+        fallbacks[kind] += n
+
     f = B.Frame(gl, case, view)
+    f.read_tables()
+    row["read_s"] = round(time.perf_counter() - t0, 3)
     try:
         f.upload()
     except B.TooMany as e:
-        fallbacks["texture_too_large"] += 1
+        fell("texture_too_large")
         return dict(row, fallback=str(e))
     row["upload_ms"] = wall_ms(f.upload, gl, 3)
     try:
         row["tile_entries"] = f.lists()
     except B.TooMany as e:
-        fallbacks["cpu_tile_lists"] += 1
+        fell("cpu_tile_lists")
         return dict(row, fallback=f"CPU tile lists: {e}")
     if info["on_gpu_tiles"]:
         row["lists_ms"] = wall_ms(f.lists, gl, 5)
-    for _ in range(WARM):
+    for _ in range(warm):
         f.draw()
     gl.ctx.finish()
     gpu_ms, wall = [], []
-    for _ in range(TIMED):
+    for _ in range(timed):
         t = time.perf_counter()
         gpu_ms.append(gl.timed(f.draw))
         gl.ctx.finish()
@@ -104,13 +164,16 @@ def measure(gl, path, view, fallbacks):
     over = B.overflow_tiles(case, dv)
     tile = int(case.define("TILE"))
     if f"{view}.cpu" in case.z.files:
+        t = time.perf_counter()
         cpu = case.cpu(view)
         for ty, tx in over:  # the device redraws these tiles on the CPU device
             rgba[ty * tile:(ty + 1) * tile, tx * tile:(tx + 1) * tile] = cpu[ty * tile:(ty + 1) * tile,
                                                                              tx * tile:(tx + 1) * tile]
         row["psnr_db"] = psnr(rgba, cpu)
+        row["psnr_floor_db"] = case.views[view].get("cpu_floor_db")  # (the saved image's rounding)
+        row["psnr_s"] = round(time.perf_counter() - t, 3)
     row["overflow_tiles"] = len(over)
-    fallbacks["overflow_tiles"] += len(over)
+    fell("chord_cap_tiles", len(over))
     fallbacks["frames_with_overflow"] += bool(over)
     row["gpu_bytes"] = f.gpu_bytes()
     if "g_rec" in f.tex:  # the per-Gaussian tables' bytes (gpu.tables_gauss.bytes_per_gaussian)
@@ -140,7 +203,8 @@ def table(rows, renderer, software):
     return "\n".join(out) + "\n"
 
 
-def run(cases, out, budget_s):
+def run(cases, out, budget_s, views=None, warm=WARM, timed=TIMED):
+    """Every case's views (those in views, None: all) measured; OUT/gpu_real.json and .md."""
     import gl_backend as B
 
     if os.path.exists(NVIDIA_EGL):
@@ -148,29 +212,36 @@ def run(cases, out, budget_s):
     t0 = time.perf_counter()
     gl = B.GL()
     software = "llvmpipe" in gl.renderer or "softpipe" in gl.renderer
-    fallbacks = {"frame_to_cpu": 0, "cpu_tile_lists": 0, "texture_too_large": 0, "overflow_tiles": 0,
-                 "frames_with_overflow": 0}
+    fallbacks = dict.fromkeys(FALLBACKS + ("frames_with_overflow",), 0)
     rows, skipped = [], []
     for fb in sorted(glob.glob(os.path.join(cases, "*.fallback.json"))):
         with open(fb) as fh:
             d = json.load(fh)
         fallbacks["frame_to_cpu"] += 1
         rows.append({"case": os.path.basename(fb), "source": d.get("source"), "mode_asked": d.get("mode_asked"),
-                     "lod": d.get("lod"), "fallback": d["fallback"]})
+                     "lod": d.get("lod"), "fallback": d["fallback"],
+                     "fallbacks": dict(dict.fromkeys(FALLBACKS, 0), frame_to_cpu=1)})
     for path in sorted(glob.glob(os.path.join(cases, "*.npz"))):
-        for view in B.Case(path).views:
+        t = time.perf_counter()
+        case = B.Case(path)
+        open_s = time.perf_counter() - t
+        for view in case.views:
+            if views is not None and view not in views:
+                continue
             if time.perf_counter() - t0 > budget_s:
                 skipped.append(f"{os.path.basename(path)} {view}")
                 continue
             t = time.perf_counter()
-            r = measure(gl, path, view, fallbacks)
+            r = measure(gl, case, view, fallbacks, warm, timed)
+            r["read_s"] = round(r["read_s"] + open_s, 3)
+            open_s = 0.0
             r["seconds"] = round(time.perf_counter() - t, 2)
             rows.append(r)
             print(json.dumps(r), flush=True)
     os.makedirs(out, exist_ok=True)
     res = {"renderer": gl.renderer, "software": software, "gl_version": gl.ctx.info["GL_VERSION"],
            "max_texture_size": gl.max_texture,
-           "timer": f"GL_TIME_ELAPSED, median of {TIMED} after {WARM} warm-ups",
+           "timer": f"GL_TIME_ELAPSED, median of {timed} after {warm} warm-ups",
            "fallbacks": fallbacks, "rows": rows, "skipped": skipped,
            "seconds": round(time.perf_counter() - t0, 1)}
     with open(os.path.join(out, "gpu_real.json"), "w") as fh:
@@ -188,17 +259,23 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("prepare")
-    p.add_argument("cases")
     p.add_argument("--wheels", default=".whl")
+    q = sub.add_parser("payload")
+    q.add_argument("cases")
     r = sub.add_parser("run")
     r.add_argument("cases")
     r.add_argument("out")
     r.add_argument("--budget-s", type=float, default=420.0)
+    r.add_argument("--views", default=None, help="only these views, e.g. 512x512 (default: all)")
+    r.add_argument("--warm", type=int, default=WARM)
+    r.add_argument("--timed", type=int, default=TIMED)
     a = ap.parse_args(argv)
     if a.cmd == "prepare":
-        prepare(a.cases, a.wheels)
-        return 0
-    return run(a.cases, a.out, a.budget_s)
+        return prepare(a.wheels)
+    if a.cmd == "payload":
+        return report_payload(a.cases)
+    views = set(a.views.split(",")) if a.views else None
+    return run(a.cases, a.out, a.budget_s, views, a.warm, a.timed)
 
 
 if __name__ == "__main__":

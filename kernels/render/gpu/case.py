@@ -10,7 +10,11 @@ A case file holds (all arrays, no pickles):
   per view, the passes' programs), what the tables cost on the GPU, the scene's description;
 - ``t.NAME``: a table every view uploads; ``VIEW.t.NAME``: a table of one view (the camera);
 - ``tiles.tl_g``, ``tiles.tl_par`` (per view ``VIEW.tiles.tl_par``): the tile lists' inputs;
-- ``VIEW.cpu``: the CPU device's Combined pass (float32 (H, W, 4)), where saved.
+- ``VIEW.cpu``: the CPU device's Combined pass where saved, compact (``pack_image``: float32
+  rounded to CPU_BITS of its 23 mantissa bits, its four bytes stored as four planes, which the
+  compression takes far better; ``unpack_image`` or gl_backend.Case.cpu reads it back). The view's
+  ``cpu_floor_db`` in case.json is the rounding's PSNR against the exact image: the PSNR a run
+  measures against it is the true one wherever that is well below (16 bits: about 130 dB).
 """
 from __future__ import annotations
 
@@ -24,6 +28,32 @@ from . import tables as gpu_layout
 from . import tables_color, tables_gauss, tables_tiles
 
 TILE_LISTS = ("t_start", "t_ent", "t_lb")  # the GPU-built lists the mode's shader samples
+CPU_BITS = 16  # the CPU image's mantissa bits kept (relative error <= 2**-17)
+
+
+def pack_image(img, bits=CPU_BITS):
+    """(H, W, C) float32 -> (4, H*W*C) uint8: each value rounded to ``bits`` mantissa bits
+    (to nearest; finite values only), its bytes as four planes (little-endian: low byte first)."""
+    a = np.ascontiguousarray(img, np.float32)
+    u = a.view(np.uint32).copy()
+    drop = 23 - int(bits)
+    if drop > 0:
+        u = (u + np.uint32(1 << (drop - 1))) & ~np.uint32((1 << drop) - 1)
+    return np.ascontiguousarray(u.view(np.uint8).reshape(-1, 4).T)
+
+
+def unpack_image(planes, shape):
+    """pack_image's inverse (the rounded values), as float32 of ``shape``."""
+    p = np.asarray(planes)
+    if p.dtype == np.float32:  # (a case saved before the images were packed)
+        return p.reshape(shape)
+    return np.ascontiguousarray(p.T).view(np.float32).reshape(shape)
+
+
+def psnr(a, b):
+    """PSNR in dB (peak 1) of two images, inf where equal."""
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return float("inf") if mse == 0 else 10.0 * np.log10(1.0 / mse)
 
 
 def frame_tables(frame, name):
@@ -63,15 +93,17 @@ def view_name(width, height) -> str:
 
 
 def save(path, views, meta):
-    """One case file from its views: [(frame, name, spec, cpu Combined), ...] of one scene at
-    several image sizes (the tables they share stored once); meta: the scene's description."""
+    """One case file from its views: [(frame, name, spec, cpu Combined or None), ...] of one
+    scene at several image sizes (the tables they share stored once, the CPU image packed where
+    given); meta: the scene's description."""
     arrays, shared, info = {}, None, dict(meta, views=[])
     for frame, name, spec, cpu in views:
         tables, ints, program, tiles = frame_case(frame, name, spec)
         v = view_name(frame.width, frame.height)
         ntx, nty = tables_tiles.tile_grid(frame) if tiles is not None else (0, 0)
-        info["views"].append({"name": v, "width": int(frame.cam[CAM_W]), "height": int(frame.cam[CAM_H]),
-                              "ntx": ntx, "nty": nty})
+        view = {"name": v, "width": int(frame.cam[CAM_W]), "height": int(frame.cam[CAM_H]),
+                "ntx": ntx, "nty": nty}
+        info["views"].append(view)
         if shared is None:
             shared = dict(tables, **({"tiles.tl_g": tiles["tl_g"]} if tiles else {}))
             info.update(mode=name, ints=ints, program=asm.to_json(program),
@@ -88,6 +120,8 @@ def save(path, views, meta):
         if tiles is not None:
             arrays[f"{v}.tiles.tl_par"] = tiles["tl_par"]
         if cpu is not None:
-            arrays[f"{v}.cpu"] = np.asarray(cpu, np.float32)
+            cpu = np.asarray(cpu, np.float32)
+            arrays[f"{v}.cpu"] = packed = pack_image(cpu)
+            view["cpu_floor_db"] = psnr(unpack_image(packed, cpu.shape), cpu)
     arrays["case.json"] = np.array(json.dumps(info))
     np.savez_compressed(path, **arrays)
