@@ -93,14 +93,14 @@ def _job_render(mode):
     return job
 
 
-# ordered: what a first import needs first (reading, the default LOD), then the other LODs, the
-# field error and the render modes (the default mode first)
-_LODS = (lod_names.DEFAULT,) + tuple(n for n in lod_names.PRESETS if n != lod_names.DEFAULT)
-_MODES = (mode_names.DEFAULT,) + tuple(n for n in mode_names.MENU_ORDER if n != mode_names.DEFAULT)
+# ordered: what a first session needs first (an import with the dialog's defaults: reading, the
+# default LOD, its field error; an F12 in the default mode), then the other LODs and modes
 JOBS = {"reader": _job_reader,
-        **{f"lod:{n}": _job_lod(n) for n in _LODS},
+        f"lod:{lod_names.DEFAULT}": _job_lod(lod_names.DEFAULT),
         "error": _job_error,
-        **{f"render:{m}": _job_render(m) for m in _MODES}}
+        f"render:{mode_names.DEFAULT}": _job_render(mode_names.DEFAULT),
+        **{f"lod:{n}": _job_lod(n) for n in lod_names.PRESETS if n != lod_names.DEFAULT},
+        **{f"render:{m}": _job_render(m) for m in mode_names.MENU_ORDER if m != mode_names.DEFAULT}}
 NAMES = tuple(JOBS)
 
 
@@ -118,7 +118,7 @@ def check_names(names) -> list:
 
 def jobs_for(lods=(), error=False, modes=()) -> list:
     """The jobs a need maps to: an import of ``lods`` (with the field error when ``error``), a
-    render in each of ``modes``. In the table's order."""
+    render in each of ``modes``. In the order they are needed (the LODs coarse first)."""
     if isinstance(lods, str):
         lods = (lods,)
     if isinstance(modes, str):
@@ -126,12 +126,12 @@ def jobs_for(lods=(), error=False, modes=()) -> list:
     names = []
     if lods:
         names.append("reader")
-        names += [f"lod:{n}" for n in lods]
+        order = {n: i for i, n in enumerate(lod_names.PRESETS)}
+        names += [f"lod:{n}" for n in sorted(lods, key=lambda n: order.get(n, len(order)))]
         if error:
             names.append("error")
     names += [f"render:{m}" for m in modes]
-    names = check_names(names)
-    return [n for n in NAMES if n in names]
+    return check_names(names)
 
 
 def run(names=None, progress=None, cancel=None, on_done=None) -> dict:

@@ -4,7 +4,8 @@ compile the numba kernels now (kernels/warmup.py's jobs), so later commands load
 numba's cache entries load only under the module names they were compiled under
 (kernels/cachedir.py). `./gaussvdb render` (and `demo`) run the extension in the bpy module as
 `bl_ext.user_default.gaussvdb` (tools/blender_session.py), `./gaussvdb convert` imports `kernels`
-directly: `--for` says which to warm (default render). The cache root is the one those commands
+directly: `--for` says which to warm (default render; it reads the file's topology as `kernels`
+too, so its reader job runs under both). The cache root is the one those commands
 use: `--cache-dir`, else GAUSSVDB_CACHE_DIR, else the user's cache folder.
 """
 
@@ -19,15 +20,18 @@ import cli_errors  # noqa: E402
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def packages(which: str) -> list:
-    """(label, package the kernels are imported under) of each identity to warm."""
+def packages(which: str, names) -> list:
+    """(label, package the kernels are imported under, jobs) of each identity to warm. `render`
+    also reads the file's topology itself, as `kernels` (tools/render_setup.py, cli_grids.py)."""
     from blender_session import MODULE
 
     out = []
     if which in ("render", "both"):
-        out.append(("render", MODULE))
+        out.append(("render", MODULE, names))
+    if which == "render" and "reader" in names:
+        out.append(("render's file checks", "", ["reader"]))
     if which in ("convert", "both"):
-        out.append(("convert", ""))
+        out.append(("convert", "", names))
     return out
 
 
@@ -57,12 +61,12 @@ def main(argv):
     from kernels.warmup_boot import import_as
 
     total = 0.0
-    for label, package in packages(args.which):
+    for label, package, jobs in packages(args.which, names):
         mod = import_as(package, ROOT)
         mod.cachedir.set_cache_root(root)
-        todo = names if args.force else mod.missing(names)
+        todo = jobs if args.force else mod.missing(jobs)
         print(f"gaussvdb warmup: {label} kernels ({package or 'kernels'}) in {mod.identity_dir()}: "
-              f"{len(todo)} of {len(names)} jobs to run", flush=True)
+              f"{len(todo)} of {len(jobs)} jobs to run", flush=True)
         t0 = time.perf_counter()
 
         def line(name, seconds, todo=todo, count=[0]):

@@ -50,18 +50,18 @@ def test_unknown_job_is_one_line(tmp_path):
 
 def test_warmup_then_a_later_process_compiles_nothing(tmp_path):
     cache = tmp_path / "kernels"
-    r = subprocess.run(CLI + ["--jobs", "reader", "--cache-dir", str(cache)], capture_output=True,
+    r = subprocess.run(CLI + ["--jobs", "lod:low", "--cache-dir", str(cache)], capture_output=True,
                        text=True, timeout=900, env=_env(tmp_path / "elsewhere"))
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     assert "bl_ext.user_default.gaussvdb" in lines[0] and "1 of 1 jobs to run" in lines[0]
-    assert any(ln.strip().startswith("[1/1] reader") and ln.endswith(" s") for ln in lines)
+    assert any(ln.strip().startswith("[1/1] lod:low") and ln.endswith(" s") for ln in lines)
     assert os.path.isdir(cache / "bl_ext.user_default.gaussvdb")
     # the marker: a second run has nothing to do
-    again = subprocess.run(CLI + ["--jobs", "reader", "--cache-dir", str(cache)],
+    again = subprocess.run(CLI + ["--jobs", "lod:low", "--cache-dir", str(cache)],
                            capture_output=True, text=True, timeout=300)
     assert "0 of 1 jobs to run" in again.stdout.splitlines()[0], again.stdout
-    out = subprocess.run([sys.executable, "-c", CHECK % {"root": ROOT, "jobs": ["reader"]}],
+    out = subprocess.run([sys.executable, "-c", CHECK % {"root": ROOT, "jobs": ["lod:low"]}],
                          capture_output=True, text=True, timeout=600, env=_env(cache))
     assert out.returncode == 0, out.stderr
     got = json.loads(out.stdout.strip().splitlines()[-1])
