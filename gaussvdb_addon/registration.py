@@ -6,15 +6,17 @@ import bpy
 
 from .. import operators
 from ..kernels import cachedir, openvdb_binding
-from .engine import gpu_choice, render_engine
+from .engine import gpu_choice, render_engine, warmup_service
 from .io import source_path, versioning
 from .properties import lod_figures, object_settings, render_settings
-from .ui import object_panel, presets, render_panel, transfer_ui
+from .ui import object_panel, preferences, presets, render_panel, transfer_ui
 
 # Properties first (others point at them), panels last (they draw the rest).
-# versioning: the load handler that upgrades files written by older versions.
+# versioning: the load handler that upgrades files written by older versions. warmup_service:
+# the background compile of the kernels (UI only), after the preferences that show it.
 MODULES = (lod_figures, object_settings, source_path, render_settings, presets, operators,
-           gpu_choice, render_engine, render_panel, object_panel, transfer_ui, versioning)
+           gpu_choice, render_engine, render_panel, object_panel, transfer_ui, preferences,
+           warmup_service, versioning)
 
 
 def bundled_openvdb():

@@ -1,8 +1,9 @@
 """Blender operators. Thin: each one calls a plain function that scripts and the CLI call too."""
 
-from . import colormap, import_vdb, presets, reload
+from . import colormap, import_vdb, kernels, presets, reload
 
-CLASSES = (*import_vdb.CLASSES, *reload.CLASSES, *colormap.CLASSES, *presets.CLASSES)
+CLASSES = (*import_vdb.CLASSES, *reload.CLASSES, *colormap.CLASSES, *presets.CLASSES,
+           *kernels.CLASSES)
 
 
 def register_extra():

@@ -3,13 +3,15 @@
 Thin: the work is in gaussvdb_addon/io/importer.py (convert everything first, then create objects).
 
 Long imports in the UI: `execute` runs the conversion one step (one grid x one LOD) per timer event
-as a modal operator, with the window manager's progress bar; Esc between steps cancels and leaves the
-scene as it was (no datablock exists before the last step). Headless (`blender -b`, the bpy module,
-scripts) and Redo run the same steps synchronously, with no event loop to listen to.
+as a modal operator (gaussvdb_addon/io/modal_import.py's steps), with the window manager's progress
+bar; Esc between steps cancels and leaves the scene as it was (no datablock exists before the last
+step). When the kernels it needs are not compiled yet, its first steps wait for the background
+warm-up (engine/warmup_service.py) instead of compiling with the interface frozen. Headless
+(`blender -b`, the bpy module, scripts) and Redo run the same steps synchronously, with no event
+loop to listen to.
 """
 
 import os
-import time
 
 import bpy
 from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatProperty, StringProperty
@@ -103,19 +105,21 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
                               color_grid=self.color_grid.strip())
 
     def execute(self, context):
-        from ..gaussvdb_addon.engine import kernel_cache
-        from ..gaussvdb_addon.io import importer
+        from ..gaussvdb_addon.engine import warmup_service
+        from ..gaussvdb_addon.io import importer, sequence_import
+        from ..kernels import warmup
 
         paths = importer.selected_paths(self.filepath, self.directory, self.files)
         big = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) >= MODAL_MIN_BYTES
-        # the first use compiles for about a minute: run modal, so the status bar says so first
-        big = big or not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
-        from ..gaussvdb_addon.io import sequence_import
-
         if self.use_sequence and sequence_import.any_sequence(paths):
             big = False  # in one go: every frame is read once, then one frame is converted
-        if big and context.window is not None and not bpy.app.background and not self.options.is_repeat:
-            return self._start_modal(context, paths)
+        ui = context.window is not None and not bpy.app.background and not self.options.is_repeat
+        # kernels not compiled yet: wait for the background warm-up (modal, Esc) rather than
+        # compile here with the interface frozen
+        wait = warmup_service.needed(warmup.jobs_for(lods=sorted(self.lods),
+                                                     error=self.measure_error)) if ui else []
+        if ui and (big or wait):
+            return self._start_modal(context, paths, wait)
         try:
             _objects, message = importer.import_files(context, paths, options=self._options(),
                                                       sequence=self.use_sequence,
@@ -127,25 +131,22 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         return {"FINISHED"}
 
     # -- the modal path (UI only) ----------------------------------------------------------------
-    def _start_modal(self, context, paths):
-        from ..gaussvdb_addon.io import importer
+    def _start_modal(self, context, paths, wait):
+        from ..gaussvdb_addon.io import modal_import
 
-        self._convert_options = self._options()
-        self._skipped = []
-        self._jobs = [importer.convert_steps(p, self._convert_options, self._skipped) for p in paths]
-        self._done = []
-        self._npaths = len(paths)
-        self._t0 = time.perf_counter()
+        self._steps = modal_import.import_steps(context, paths, self._options(),
+                                                sequence=self.use_sequence, wait=wait)
         wm = context.window_manager
         wm.progress_begin(0, 1000)
         self._timer = wm.event_timer_add(0.01, window=context.window)
         wm.modal_handler_add(self)
-        from ..gaussvdb_addon.engine import kernel_cache
-
-        first = not (kernel_cache.compiled("vdb") and kernel_cache.compiled("lod"))
-        context.workspace.status_text_set((kernel_cache.MESSAGE + " " if first else "")
-                                          + "Importing OpenVDB as Gaussians... (Esc to cancel)")
+        self._status(context, "Compiling GaussVDB kernels in the background..." if wait
+                     else "Importing OpenVDB as Gaussians...")
         return {"RUNNING_MODAL"}
+
+    @staticmethod
+    def _status(context, text):
+        context.workspace.status_text_set(f"{text} (Esc to cancel)")
 
     def _stop_modal(self, context):
         wm = context.window_manager
@@ -154,8 +155,7 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
             self._timer = None
         wm.progress_end()
         context.workspace.status_text_set(None)
-        for job in self._jobs:
-            job.close()
+        self._steps.close()
 
     def modal(self, context, event):
         from ..gaussvdb_addon.io import importer
@@ -167,33 +167,18 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         if event.type != "TIMER":
             return {"RUNNING_MODAL"}  # block other input while importing (Esc still reaches us)
         try:
-            job = self._jobs[len(self._done)]
             try:
-                fraction, _text = next(job)
-                done_files = len(self._done) + fraction
-                context.window_manager.progress_update(int(1000 * done_files / self._npaths))
+                fraction, text = next(self._steps)
+                context.window_manager.progress_update(int(1000 * fraction))
+                self._status(context, text)
                 return {"RUNNING_MODAL"}
             except StopIteration as stop:
-                self._done.append(stop.value)
-            if len(self._done) < self._npaths:
-                return {"RUNNING_MODAL"}
+                objs, message = stop.value
             self._stop_modal(context)
-            converted = [cg for part in self._done for cg in part]
-            t1 = time.perf_counter()
-            objs = importer.build_objects(converted, None, self._convert_options)
-            t2 = time.perf_counter()
         except importer.VDBImportError as err:
             self._stop_modal(context)
             self.report({"ERROR"}, str(err))
             return {"CANCELLED"}
-        for obj in context.view_layer.objects.selected:
-            obj.select_set(False)
-        for obj in objs:
-            obj.select_set(True)
-        if objs:
-            context.view_layer.objects.active = objs[-1]
-        timing = importer.import_timing(converted, t2 - self._t0, t2 - t1)
-        message = importer.status_message(objs, self._skipped, timing)
         self.report({"WARNING"} if "NaN/Inf" in message else {"INFO"}, message)
         return {"FINISHED"}
 

@@ -79,6 +79,24 @@ def register_passes(engine, scene, renderlayer):
         engine.register_pass(scene, renderlayer, name, ch, chid, pass_type)
 
 
+def wait_for_kernels(engine, mode):
+    """Before a render loads its kernels: when the background warm-up (warmup_service) compiles
+    the ones this mode needs, wait for it (the status says so, Esc stops the render) instead of
+    compiling them here too. Nothing to wait for in background mode (it compiles in-process)."""
+    from ...kernels import warmup
+    from . import warmup_service
+
+    jobs = warmup_service.needed(warmup.jobs_for(modes=(mode,)))
+    if not jobs:
+        return
+    result = warmup_service.wait(jobs, cancel=engine.test_break, report=lambda text:
+                                 engine.update_stats("", f"GaussVDB | {text} (Esc to cancel)"))
+    if result == "cancelled":
+        raise RenderCancelled()
+    if result != "done":  # the warm-up failed: the kernels compile here, as without it
+        engine.report({"WARNING"}, f"GaussVDB: background compile {result}; compiling here")
+
+
 def announce_compile(engine):
     """Console and status bar say so before the kernels compile for the first time."""
     from . import kernel_cache
@@ -134,6 +152,7 @@ def _render_on(engine, depsgraph, name):
     t_sync = time.perf_counter() - t0
     # the kernels this scene's frames run (its mode, lights, surfaces...), loaded or on first
     # use compiled before the frame is timed
+    wait_for_kernels(engine, rscene.mode)  # a background warm-up compiling them: its progress
     engine.update_stats("", "GaussVDB | loading the kernels")
     announce_compile(engine)
     t_compile = device.load_kernels(scene=rscene, camera=camera, tf=tf)

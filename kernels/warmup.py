@@ -1,0 +1,333 @@
+"""Compiling the kernels ahead of use: an ordered table of warm-up jobs, each compiling (or
+loading from numba's cache) one group of kernels by running a tiny real case.
+
+    from kernels import warmup
+    warmup.run()                                    # every job; {name: seconds}
+    warmup.run(["reader", "lod:medium"], progress=print)
+    warmup.jobs_for(lods=("medium",), error=True)   # ['reader', 'lod:medium', 'error']
+    warmup.jobs_for(modes=("reference",))           # ['render:reference']
+    warmup.missing(["reader"])                      # the jobs whose kernels are not cached yet
+
+A job that finishes leaves a marker beside the kernels' cache (``marker_dir``): its kernels are
+in the cache for this importing identity (cachedir.py), these sources (``cachedir.sources_tag``),
+this Python, numba and machine. ``missing`` reads only the markers: no numba import, a few file
+checks, so the Blender layer can ask it from a panel or before an import.
+
+``main`` is the warm-up as a command (``warmup_boot.py`` starts it under the identity the caller
+names); it reports progress to a JSON status file written atomically (``read_status``).
+Plain Python, no bpy.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import platform
+import sys
+import time
+
+from . import cachedir, lod_names, mode_names
+
+FIXTURE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "warmup.vdb")
+
+
+class WarmupCancelled(Exception):
+    """The cancel callback said so between two jobs."""
+
+
+class WarmupError(Exception):
+    """A job failed; the message says which and why in one line."""
+
+
+# -- the jobs --------------------------------------------------------------------------------------
+def _fixture_grids():
+    from . import pipeline
+
+    grids, _seconds = pipeline.read_grids(FIXTURE)
+    return grids
+
+
+def _job_reader():
+    """Read the fixture as an import does: topology, leaves (zip and half floats), NaN/Inf check,
+    value figures."""
+    from . import pipeline, vdb
+    from .render.scene.transfer import voxel_stats
+
+    pipeline.read_color_grid(FIXTURE, "density")
+    for grid in _fixture_grids():  # what convert_steps does before the LODs
+        vdb.sanitize_nonfinite(grid)
+        pipeline.leaf_box(grid)
+        if grid.grid_class != "level_set":
+            voxel_stats(grid)
+
+
+def _job_lod(name):
+    def job():
+        from . import pipeline
+
+        for grid in _fixture_grids():  # a fog volume and a level set
+            pipeline.convert_lod(grid, name, compute_error=False)
+    job.__doc__ = f"Build the {lod_names.label(name)} LOD of the fixture's fog volume and level set."
+    return job
+
+
+def _job_error():
+    """The field error an import measures when asked (pipeline.measure_error)."""
+    from . import pipeline
+
+    for grid in _fixture_grids():
+        pipeline.convert_lod(grid, "low", compute_error=True)
+
+
+def _job_render(mode):
+    def job():
+        from .render import CPUDevice
+
+        device = CPUDevice()
+        device.load_kernels(modes=(mode,))
+    job.__doc__ = f"The CPU device's kernels of the {mode_names.LABELS[mode]} render mode."
+    return job
+
+
+# ordered: what a first session needs first (an import with the dialog's defaults: reading, the
+# default LOD, its field error; an F12 in the default mode), then the other LODs and modes
+JOBS = {"reader": _job_reader,
+        f"lod:{lod_names.DEFAULT}": _job_lod(lod_names.DEFAULT),
+        "error": _job_error,
+        f"render:{mode_names.DEFAULT}": _job_render(mode_names.DEFAULT),
+        **{f"lod:{n}": _job_lod(n) for n in lod_names.PRESETS if n != lod_names.DEFAULT},
+        **{f"render:{m}": _job_render(m) for m in mode_names.MENU_ORDER if m != mode_names.DEFAULT}}
+NAMES = tuple(JOBS)
+
+
+def check_names(names) -> list:
+    """``names`` (None: every job, in the table's order) as a list, in their order, each once;
+    ValueError names an unknown one."""
+    if names is None:
+        return list(NAMES)
+    names = [names] if isinstance(names, str) else list(names)
+    bad = [n for n in names if n not in JOBS]
+    if bad:
+        raise ValueError(f"unknown warm-up job {bad[0]!r}; choose from {', '.join(NAMES)}")
+    return list(dict.fromkeys(names))
+
+
+def jobs_for(lods=(), error=False, modes=()) -> list:
+    """The jobs a need maps to: an import of ``lods`` (with the field error when ``error``), a
+    render in each of ``modes``. In the order they are needed (the LODs coarse first)."""
+    if isinstance(lods, str):
+        lods = (lods,)
+    if isinstance(modes, str):
+        modes = (modes,)
+    names = []
+    if lods:
+        names.append("reader")
+        order = {n: i for i, n in enumerate(lod_names.PRESETS)}
+        names += [f"lod:{n}" for n in sorted(lods, key=lambda n: order.get(n, len(order)))]
+        if error:
+            names.append("error")
+    names += [f"render:{m}" for m in modes]
+    return check_names(names)
+
+
+def run(names=None, progress=None, cancel=None, on_done=None) -> dict:
+    """Run the jobs ``names`` (None: all) in that order. ``progress(index, count, name)``
+    before each, WarmupCancelled when ``cancel()`` is true before one, ``on_done(name, seconds)``
+    after each. Returns {name: seconds}."""
+    todo = check_names(names)
+    seconds = {}
+    for i, name in enumerate(todo):
+        if cancel is not None and cancel():
+            raise WarmupCancelled(f"warm-up cancelled before {name}")
+        if progress is not None:
+            progress(i, len(todo), name)
+        t0 = time.perf_counter()
+        try:
+            JOBS[name]()
+        except Exception as err:  # noqa: BLE001  (one line naming the job)
+            raise WarmupError(f"warm-up job {name} failed: {type(err).__name__}: {err}") from err
+        seconds[name] = time.perf_counter() - t0
+        if on_done is not None:
+            on_done(name, seconds[name])
+    return seconds
+
+
+# -- markers: which jobs' kernels are in the cache ---------------------------------------------------
+def _identity() -> str:
+    """The importing identity of these kernels ('kernels', 'bl_ext.user_default.gaussvdb', ...)."""
+    return cachedir.identity(__name__, __file__) or "kernels"
+
+
+def _numba_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("numba")
+    except Exception:  # noqa: BLE001  (not installed as a distribution)
+        return "none"
+
+
+_KEY = {}
+
+
+def cache_key() -> str:
+    """What the cached kernels depend on besides numba's own checks: the sources of every kernel
+    subpackage (the kernels call across them), Python, numba and the machine."""
+    if "key" not in _KEY:
+        kernels = os.path.dirname(os.path.abspath(__file__))
+        subs = sorted(n for n in os.listdir(kernels)
+                      if os.path.isfile(os.path.join(kernels, n, "__init__.py")))
+        h = hashlib.sha1()
+        for sub in subs:
+            h.update(f"{sub}={cachedir.sources_tag(sub)};".encode())
+        for name in sorted(os.listdir(kernels)):  # the top-level modules (pipeline.py, jit.py)
+            if name.endswith(".py"):
+                with open(os.path.join(kernels, name), "rb") as fh:
+                    h.update(name.encode() + b"\0" + fh.read())
+        h.update(f"{sys.version_info[:2]};{_numba_version()};{platform.machine()}".encode())
+        _KEY["key"] = h.hexdigest()[:12]
+    return _KEY["key"]
+
+
+def identity_dir(root=None) -> str:
+    """The cache folder of this importing identity (every kernel subpackage's entries)."""
+    return os.path.join(root or cachedir.cache_root(), _identity())
+
+
+def marker_dir(root=None) -> str:
+    return os.path.join(identity_dir(root), "warmup", cache_key())
+
+
+def status_path(root=None) -> str:
+    return os.path.join(identity_dir(root), "warmup", "status.json")
+
+
+def _marker(name, root=None) -> str:
+    return os.path.join(marker_dir(root), name.replace(":", "-") + ".done")
+
+
+def is_done(name, root=None) -> bool:
+    return os.path.isfile(_marker(name, root))
+
+
+def missing(names=None, root=None) -> list:
+    """The jobs of ``names`` (None: all) whose kernels are not in the cache yet."""
+    return [n for n in check_names(names) if not is_done(n, root)]
+
+
+def mark_done(name, seconds=0.0, root=None) -> None:
+    os.makedirs(marker_dir(root), exist_ok=True)
+    _write_json(_marker(name, root), {"job": name, "seconds": round(seconds, 3), "time": time.time()})
+
+
+def cache_size(root=None) -> int:
+    """Bytes in this identity's cache folder (the compiled kernels and the warm-up's records)."""
+    total = 0
+    for here, _dirs, names in os.walk(identity_dir(root)):
+        for n in names:
+            try:
+                total += os.path.getsize(os.path.join(here, n))
+            except OSError:
+                pass
+    return total
+
+
+# -- the status file -------------------------------------------------------------------------------
+def _write_json(path, data) -> None:
+    """Written to a temporary file beside ``path``, then renamed over it: readers never see half."""
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(data, fh)
+    os.replace(tmp, path)
+
+
+def read_status(path) -> dict:
+    """The status a warm-up process wrote ({} when there is none or it cannot be read)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+        return data if isinstance(data, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+class StatusWriter:
+    """The status file of one warm-up run: pid, the jobs, the current one, seconds per job done,
+    state ('running', 'done', 'failed', 'cancelled') and error."""
+
+    def __init__(self, path, jobs):
+        self.path = path
+        self.data = {"pid": os.getpid(), "jobs": list(jobs), "index": 0, "count": len(jobs),
+                     "name": "", "seconds": {}, "state": "running", "error": "",
+                     "started": time.time(), "updated": time.time()}
+        if path:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+        self.write()
+
+    def write(self, **changes) -> None:
+        self.data.update(changes, updated=time.time())
+        if self.path:
+            _write_json(self.path, self.data)
+
+    def progress(self, index, count, name) -> None:
+        self.write(index=index, count=count, name=name)
+
+    def done(self, name, seconds) -> None:
+        self.data["seconds"][name] = round(seconds, 3)
+        self.write()
+
+
+def warm(names=None, status=None, progress=None, cancel=None, on_done=None, force=False) -> dict:
+    """``run`` that skips the jobs already marked done (unless ``force``), marks each job it
+    finishes and keeps a status file (``status``: its path, None for none). Returns {name:
+    seconds} of the jobs run."""
+    todo = check_names(names) if force else missing(names)
+    writer = StatusWriter(status, todo)
+
+    def on_progress(i, n, name):
+        writer.progress(i, n, name)
+        if progress is not None:
+            progress(i, n, name)
+
+    def done(name, seconds):
+        mark_done(name, seconds)
+        writer.done(name, seconds)
+        if on_done is not None:
+            on_done(name, seconds)
+
+    try:
+        seconds = run(todo, on_progress, cancel, done)
+    except WarmupCancelled as err:
+        writer.write(state="cancelled", error=str(err))
+        raise
+    except WarmupError as err:
+        writer.write(state="failed", error=str(err))
+        raise
+    writer.write(state="done", index=len(todo), name="")
+    return seconds
+
+
+def main(argv=None) -> int:
+    """The warm-up process: ``--jobs a,b`` (default all), ``--status FILE`` (default
+    ``status_path()``), ``--cache-root DIR``; exits 0 when every job is done, 1 when one failed."""
+    ap = argparse.ArgumentParser(prog="warmup")
+    ap.add_argument("--jobs", default="")
+    ap.add_argument("--status", default="")
+    ap.add_argument("--cache-root", default="")
+    ap.add_argument("--nice", type=int, default=0)
+    args = ap.parse_args(argv)
+    if args.cache_root:
+        cachedir.set_cache_root(args.cache_root)
+    if args.nice and hasattr(os, "nice"):
+        try:
+            os.nice(args.nice)  # the UI's process stays responsive while this one compiles
+        except OSError:
+            pass
+    names = [n for n in args.jobs.split(",") if n.strip()] or None
+    try:
+        warm([n.strip() for n in names] if names else None, args.status or status_path())
+    except (WarmupError, ValueError) as err:
+        print(f"gaussvdb warm-up: {err}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,69 @@
+"""`./gaussvdb warmup`: compiles kernels into a cache that a later process of the same identity
+(the one `./gaussvdb render` imports the extension under) loads without compiling."""
+
+import json
+import os
+import subprocess
+import sys
+
+from conftest import ROOT
+
+CLI = [sys.executable, os.path.join(ROOT, "tools", "cli.py"), "warmup"]
+
+# a later process: the kernels under the render command's identity, the same job, numba's own
+# per-dispatcher counts of cache hits and misses (a miss is a compile)
+CHECK = """
+import json, os, sys
+sys.path.insert(0, %(root)r)
+sys.path.insert(1, os.path.join(%(root)r, "tools"))
+from blender_session import MODULE
+from kernels.warmup_boot import import_as
+w = import_as(MODULE)
+w.run(%(jobs)r)
+from numba.core.dispatcher import Dispatcher
+hits = misses = 0
+for name, mod in list(sys.modules.items()):
+    if not name.startswith(MODULE + ".kernels"):
+        continue
+    for value in vars(mod).values():
+        d = getattr(value, "dispatcher", value)
+        if isinstance(d, Dispatcher) and d.__module__ == name:
+            hits += sum(d.stats.cache_hits.values())
+            misses += sum(d.stats.cache_misses.values())
+print(json.dumps({"hits": hits, "misses": misses, "module": w.__name__}))
+"""
+
+
+def _env(cache):
+    env = dict(os.environ, GAUSSVDB_CACHE_DIR=str(cache))
+    env.pop("NUMBA_CACHE_DIR", None)
+    return env
+
+
+def test_unknown_job_is_one_line(tmp_path):
+    r = subprocess.run(CLI + ["--jobs", "lod:nope", "--cache-dir", str(tmp_path)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert "unknown warm-up job 'lod:nope'" in r.stderr
+
+
+def test_warmup_then_a_later_process_compiles_nothing(tmp_path):
+    cache = tmp_path / "kernels"
+    r = subprocess.run(CLI + ["--jobs", "lod:low", "--cache-dir", str(cache)], capture_output=True,
+                       text=True, timeout=900, env=_env(tmp_path / "elsewhere"))
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert "bl_ext.user_default.gaussvdb" in lines[0] and "1 of 1 jobs to run" in lines[0]
+    assert any(ln.strip().startswith("[1/1] lod:low") and ln.endswith(" s") for ln in lines)
+    assert os.path.isdir(cache / "bl_ext.user_default.gaussvdb")
+    # the marker: a second run has nothing to do
+    again = subprocess.run(CLI + ["--jobs", "lod:low", "--cache-dir", str(cache)],
+                           capture_output=True, text=True, timeout=300)
+    assert "0 of 1 jobs to run" in again.stdout.splitlines()[0], again.stdout
+    out = subprocess.run([sys.executable, "-c", CHECK % {"root": ROOT, "jobs": ["lod:low"]}],
+                         capture_output=True, text=True, timeout=600, env=_env(cache))
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["module"] == "bl_ext.user_default.gaussvdb.kernels.warmup"
+    assert got["hits"] > 0 and got["misses"] == 0, got

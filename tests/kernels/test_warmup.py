@@ -1,0 +1,88 @@
+"""The warm-up table (kernels/warmup.py): which jobs a need maps to, the markers, the status file,
+cancelling. No job runs here (tests/e2e/test_warmup_cli.py compiles a few)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from conftest import ROOT
+
+from kernels import lod_names, mode_names, warmup
+
+
+def test_the_table_has_a_job_per_lod_and_mode_in_order():
+    assert warmup.NAMES[0] == "reader"
+    assert warmup.NAMES[1] == f"lod:{lod_names.DEFAULT}"
+    assert {f"lod:{n}" for n in lod_names.PRESETS} | {"error"} | \
+        {f"render:{m}" for m in mode_names.NAMES} | {"reader"} == set(warmup.NAMES)
+    # a first session's needs first: an import with the dialog's defaults, an F12 in the default mode
+    assert warmup.NAMES[2:4] == ("error", f"render:{mode_names.DEFAULT}")
+
+
+def test_jobs_for_a_need():
+    assert warmup.jobs_for(lods=("medium",)) == ["reader", "lod:medium"]
+    assert warmup.jobs_for(lods=("high", "low"), error=True) == ["reader", "lod:low", "lod:high", "error"]
+    assert warmup.jobs_for(modes=("reference",)) == ["render:reference"]
+    assert warmup.jobs_for(modes="splat") == ["render:splat"]
+    assert warmup.jobs_for() == []
+    with pytest.raises(ValueError, match="unknown warm-up job 'lod:nope'; choose from reader"):
+        warmup.jobs_for(lods=("nope",))
+    assert warmup.check_names(["error", "reader", "error"]) == ["error", "reader"]
+
+
+def test_markers_say_what_is_compiled(tmp_path):
+    root = str(tmp_path)
+    assert warmup.missing(["reader", "lod:low"], root=root) == ["reader", "lod:low"]
+    warmup.mark_done("lod:low", 1.5, root=root)
+    assert warmup.missing(["reader", "lod:low"], root=root) == ["reader"]
+    assert warmup.is_done("lod:low", root=root)
+    # beside the kernels of this identity, under the key of these sources, Python and numba
+    assert warmup.marker_dir(root).startswith(os.path.join(root, "kernels", "warmup") + os.sep)
+    assert warmup.cache_key() == warmup.cache_key() and len(warmup.cache_key()) == 12
+    assert warmup.cache_size(root) > 0
+
+
+def test_status_file_is_whole_json(tmp_path):
+    path = str(tmp_path / "w" / "status.json")
+    w = warmup.StatusWriter(path, ["reader", "lod:low"])
+    w.progress(1, 2, "lod:low")
+    w.done("reader", 2.0)
+    st = warmup.read_status(path)
+    assert st["pid"] == os.getpid() and st["name"] == "lod:low" and st["index"] == 1
+    assert st["seconds"] == {"reader": 2.0} and st["state"] == "running"
+    assert not [f for f in os.listdir(tmp_path / "w") if f.endswith(".tmp")]
+    (tmp_path / "bad.json").write_text("{half")
+    assert warmup.read_status(str(tmp_path / "bad.json")) == {}
+    assert warmup.read_status(str(tmp_path / "none.json")) == {}
+
+
+def test_cancel_before_a_job_runs_nothing(tmp_path):
+    seen = []
+    with pytest.raises(warmup.WarmupCancelled):
+        warmup.run(["reader"], progress=lambda *a: seen.append(a), cancel=lambda: True)
+    assert seen == []
+
+
+def test_the_process_refuses_an_unknown_job_in_one_line(tmp_path):
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "kernels", "warmup_boot.py"), "--jobs",
+                        "nope", "--cache-root", str(tmp_path)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 1
+    assert r.stderr.strip().splitlines() == [
+        f"gaussvdb warm-up: unknown warm-up job 'nope'; choose from {', '.join(warmup.NAMES)}"]
+
+
+def test_import_as_names_the_kernels_after_the_extension(tmp_path):
+    """The stub packages give the kernels the extension's module names without running its
+    __init__ (bpy) and without loading numba."""
+    code = ("import sys; sys.path.insert(0, %r)\n"
+            "from kernels.warmup_boot import import_as\n"
+            "w = import_as('bl_ext.user_default.gaussvdb')\n"
+            "import json; print(json.dumps([w.__name__, w._identity(), 'bpy' in sys.modules, "
+            "'numba' in sys.modules]))" % ROOT)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout) == ["bl_ext.user_default.gaussvdb.kernels.warmup",
+                                    "bl_ext.user_default.gaussvdb", False, False]
