@@ -57,6 +57,10 @@ def identity(module: str, source_file: str) -> str | None:
     return head if sep else None
 
 
+# the kernel subpackages that hold compiled kernels ("top": the files directly in kernels/)
+SUBPACKAGES = ("top", "vdb", "lod", "render")
+
+
 def sources_tag(subpackage: str) -> str:
     """Hash of the .py files of one kernel subpackage (e.g. 'render'), computed once a process."""
     tag = _tags.get(subpackage)

@@ -278,10 +278,36 @@ class StatusWriter:
         self.write()
 
 
+def prune_stale(root=None) -> int:
+    """Remove this identity's kernel folders of other versions of the sources (``<sub>-<hash>``
+    whose hash is not the current one) and their markers: an update leaves them unused. Returns
+    the bytes freed."""
+    import shutil
+
+    base = identity_dir(root)
+    stale = []
+    for name in os.listdir(base) if os.path.isdir(base) else ():
+        sub, sep, tag = name.rpartition("-")
+        if sep and sub in cachedir.SUBPACKAGES and tag != cachedir.sources_tag(sub):
+            stale.append(os.path.join(base, name))
+    marks = os.path.join(base, "warmup")
+    for name in os.listdir(marks) if os.path.isdir(marks) else ():
+        if name != cache_key() and os.path.isdir(os.path.join(marks, name)):
+            stale.append(os.path.join(marks, name))
+    freed = 0
+    for folder in stale:
+        for here, _dirs, names in os.walk(folder):
+            freed += sum(os.path.getsize(os.path.join(here, n)) for n in names
+                         if os.path.isfile(os.path.join(here, n)))
+        shutil.rmtree(folder, ignore_errors=True)
+    return freed
+
+
 def warm(names=None, status=None, progress=None, cancel=None, on_done=None, force=False) -> dict:
     """``run`` that skips the jobs already marked done (unless ``force``), marks each job it
     finishes and keeps a status file (``status``: its path, None for none). Returns {name:
     seconds} of the jobs run."""
+    prune_stale()  # an update's old kernels
     todo = check_names(names) if force else missing(names)
     writer = StatusWriter(status, todo)
 

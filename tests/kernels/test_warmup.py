@@ -86,3 +86,20 @@ def test_import_as_names_the_kernels_after_the_extension(tmp_path):
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout) == ["bl_ext.user_default.gaussvdb.kernels.warmup",
                                     "bl_ext.user_default.gaussvdb", False, False]
+
+
+def test_an_update_s_old_kernels_are_pruned(tmp_path):
+    """Folders of other versions of a subpackage's sources, and other versions' markers, go;
+    the current ones and anything not ours stay."""
+    from kernels import cachedir
+
+    base = tmp_path / warmup._identity()
+    keep = [base / f"render-{cachedir.sources_tag('render')}" / "a.nbi",
+            base / "warmup" / warmup.cache_key() / "reader.done", base / "notes" / "x.txt"]
+    gone = [base / "render-000000000000" / "b.nbi", base / "vdb-111111111111" / "c.nbc",
+            base / "warmup" / "oldkey" / "reader.done"]
+    for f in keep + gone:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_bytes(b"12345")
+    assert warmup.prune_stale(str(tmp_path)) == 5 * len(gone)
+    assert all(f.exists() for f in keep) and not any(f.parent.exists() for f in gone)
