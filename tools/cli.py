@@ -15,7 +15,7 @@ COMMANDS = {
     "info": "list the grids of a .vdb file",
     "convert": "convert one grid to Gaussians at a LOD preset",
     "render": "render a .vdb through the GAUSSVDB engine to an image",
-    "bench": "benchmarks: bench [ingest|lod|render|stability] ...",
+    "bench": "benchmarks: bench [ingest|lod|render|stability|cold_start] ...",
 }
 
 
