@@ -8,6 +8,11 @@ its subpackage's sources (the kernels call across files; numba only checks a fun
 
     <root>/<identity>/<subpackage>-<sources hash>/<numba's per-folder subpath>/...
 
+Within a folder, numba keeps an entry while its function's file has the stamp recorded with it;
+ours is the file's content (``source_digest``), never its mtime: reinstalling the extension (the
+same files written again) keeps every entry, on every numba (numba before 0.68 stamps (mtime,
+size); 0.68 hashes the content as we do, with the same value).
+
 The root is never the source tree: ``set_cache_root()`` (the extension passes its user folder),
 else ``GAUSSVDB_CACHE_DIR``, else ``NUMBA_CACHE_DIR``, else the user's cache folder.
 """
@@ -20,6 +25,7 @@ import sys
 _KERNELS = os.path.dirname(os.path.abspath(__file__))
 _state = {"root": None}
 _tags: dict[str, str] = {}
+_digests: dict[str, bytes] = {}
 
 
 def user_cache_root() -> str:
@@ -76,6 +82,17 @@ def sources_tag(subpackage: str) -> str:
                         h.update(rel.encode() + b"\0" + fh.read())
         tag = _tags[subpackage] = h.hexdigest()[:12]
     return tag
+
+
+def source_digest(path: str) -> bytes:
+    """sha256 of a source file's bytes, read once a process: the stamp of its cached kernels
+    (numba 0.68's own value for the same file, so entries it wrote stay valid)."""
+    real = os.path.realpath(path)
+    digest = _digests.get(real)
+    if digest is None:
+        with open(real, "rb") as fh:
+            digest = _digests[real] = hashlib.sha256(fh.read()).digest()
+    return digest
 
 
 def folder_for(module: str, source_file: str) -> str | None:

@@ -38,8 +38,9 @@ except ImportError:  # pragma: no cover - numba is optional for the reader
 
 if HAVE_NUMBA:
     class KernelCacheLocator(_caching._SourceFileBackedLocatorMixin, _caching._CacheLocator):
-        """numba cache locator for GaussVDB's kernels: <cachedir.folder_for>/<numba's subpath>.
-        Falls back to a private temporary folder if that one cannot be written."""
+        """numba cache locator for GaussVDB's kernels: <cachedir.folder_for>/<numba's subpath>,
+        stamped with the source file's content. Falls back to a private temporary folder if that
+        one cannot be written."""
 
         def __init__(self, py_func, py_file, folder):
             self._py_file = py_file
@@ -50,6 +51,10 @@ if HAVE_NUMBA:
 
         def get_cache_path(self):
             return self._cache_path
+
+        def get_source_stamp(self):
+            # the content, never the mtime (cachedir.source_digest): a reinstall keeps the entries
+            return cachedir.source_digest(self._py_file)
 
         @classmethod
         def from_function(cls, py_func, py_file):

@@ -16,7 +16,7 @@ COMMANDS = {
     "convert": "convert one grid to Gaussians at a LOD preset",
     "render": "render a .vdb through the GAUSSVDB engine to an image",
     "warmup": "compile the numba kernels now (farms, first runs): warmup [--jobs a,b] [--cache-dir DIR]",
-    "bench": "benchmarks: bench [ingest|lod|render|stability] ...",
+    "bench": "benchmarks: bench [ingest|lod|render|stability|cold_start] ...",
 }
 
 
