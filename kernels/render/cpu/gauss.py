@@ -336,9 +336,8 @@ def sweep_field(horizon, st, qs, fs, H, hid, ev_t, ev_h, act, g_rec, g_obj, ro, 
 
 
 def sweep(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
-    """The queued chords up to ``horizon``, composited as ``mode`` draws them (sweep_particles,
-    or sweep_field for the field modes); true when the ray is done (per_mode: one of the two
-    is compiled)."""
+    """The queued chords up to ``horizon``, composited as ``mode`` draws them (sweep_particles
+    or sweep_field: per_mode compiles one); true when the ray is done."""
 
 
 @per_mode(sweep)

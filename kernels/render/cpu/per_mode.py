@@ -1,7 +1,7 @@
 """Kernels specialised per render mode, so a frame compiles its own mode's kernels and no other's.
 
 A frame's mode reaches the kernels as a compile-time constant: each mode has its own entry
-(pixels.mode_entry) that passes its mode as a literal int, and numba hands literals on to the
+(launch.mode_entry) that passes its mode as a literal int, and numba hands literals on to the
 kernels it calls. A call of a ``per_mode`` function then resolves, while numba types the caller,
 to the implementation its ``choose`` returns for that mode; the other modes' code is never typed
 or compiled (a reference frame used to compile every Gaussian kernel as well: 146 functions,
@@ -22,7 +22,7 @@ def literal_mode(mode_type, where: str) -> Mode:
     """The Mode a numba literal int type names; a TypingError when the mode is not a constant."""
     if not isinstance(mode_type, types.IntegerLiteral):
         raise TypingError(f"{where}: the render mode must be a compile-time constant "
-                          "(draw through pixels.mode_entry)")
+                          "(draw through cpu.launch.mode_entry)")
     return Mode(mode_type.literal_value)
 
 

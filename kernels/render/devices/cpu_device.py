@@ -1,7 +1,7 @@
 """CPUDevice: numba, parallel over rows, nogil, cached kernels (device.py says what a device does).
 Its sync builds what frames draw from on first use (the Gaussians, their per-leaf lists, the
 voxel bricks); its begin_frame makes the frame (frame.Frame) from frame_setup's arrays as the
-mode's entry in modes.py asks; its render draws bands of rows (bands.py) with pixels.render_rows."""
+mode's entry in modes.py asks; its render draws bands of rows (bands.py) with launch.render_rows."""
 from __future__ import annotations
 
 import dataclasses
@@ -30,9 +30,9 @@ class CPUDevice(Device):
     def __init__(self, threads=None, cache_dir=None, tile_rows=None, screen_tiles=True):
         if cache_dir:
             set_cache_root(cache_dir)
-        from ..cpu import pixels  # noqa: F401  (compiles or loads cached kernels lazily)
+        from ..cpu import launch  # (compiles or loads cached kernels lazily, per mode)
         from ..cpu import tiles as _cpu_tiles
-        self._k = pixels
+        self._k = launch
         self._kt = _cpu_tiles
         self.screen_tiles = bool(screen_tiles)  # particles/field: screen tiles, else the leaf walk
         self.threads = threads
