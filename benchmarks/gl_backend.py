@@ -40,28 +40,6 @@ class TooMany(Exception):
     """The screen-tile lists pass what this GPU's textures hold: the device takes the CPU's."""
 
 
-_POOLS = {}
-
-
-class Pool:
-    """A folder's pool of shared tables (gpu_pack.py): each stored as its bytes' planes."""
-
-    def __init__(self, folder):
-        self.z = np.load(os.path.join(folder, "pool.tables"), allow_pickle=False)
-        self.index = json.loads(str(self.z["index.json"]))
-
-    def __getitem__(self, key):
-        dtype, shape = self.index[key]
-        return np.ascontiguousarray(self.z[key].T).view(np.dtype(dtype)).reshape(shape)
-
-
-def pool(folder):
-    """A folder's Pool, opened once."""
-    if folder not in _POOLS:
-        _POOLS[folder] = Pool(folder)
-    return _POOLS[folder]
-
-
 class Case:
     """A saved frame (gpu_case.save): its tables per view, ints, programs, CPU images."""
 
@@ -74,17 +52,12 @@ class Case:
         self.program = asm.from_json(self.info["program"]) if "program" in self.info else None
         self.tile_programs = {s: asm.from_json(p) for s, p in self.info.get("tile_programs", {}).items()}
         self._read = {}
-        self.pooled = self.info.get("pooled", {})  # (gpu_pack.py: arrays in the folder's pool)
-        self.files = set(self.z.files) | set(self.pooled)
+        self.files = set(self.z.files)
 
     def array(self, key):
-        """An array of the file or its folder's pool, decompressed once (the views share most
-        tables)."""
+        """An array of the file, decompressed once (the views share most tables)."""
         if key not in self._read:
-            if key in self.pooled:
-                self._read[key] = pool(os.path.dirname(os.path.abspath(self.path)))[self.pooled[key]]
-            else:
-                self._read[key] = self.z[key]
+            self._read[key] = self.z[key]
         return self._read[key]
 
     def tables(self, view):

@@ -1,17 +1,26 @@
-"""The GPU device's shaders timed on a real GPU with no Blender: every saved case (gpu_cases.py:
-file x mode x LOD, a view per image size) drawn by the standalone OpenGL backend (gl_backend.py)
-as the GPU device draws it.
+"""The GPU device's shaders timed on a real GPU with no Blender: every case (gpu_cases.py: file x
+mode x LOD, a view per image size) drawn by the standalone OpenGL backend (gl_backend.py) as the
+GPU device draws it, the cases made on the GPU machine from the .vdb files the call carries.
 
-    python benchmarks/gpu_real.py prepare [--wheels .whl]          # here: wheels for Python 3.12
-    python benchmarks/gpu_real.py payload FOLDER                   # what a call carrying FOLDER
-                                                                   # carries, in MiB (1: too much)
+    python benchmarks/gpu_real.py prepare [--wheels .whl] [--data .data]   # here: wheels for Python
+                                   # 3.12 and the shared .vdb files copied into .data
+    python benchmarks/gpu_real.py payload [--data .data]                  # what the call carries,
+                                   # in MiB (exit 1: too much)
+    python benchmarks/gpu_real.py build DATA OUT [--budget-s 450] [--jobs J] [--threads T]
+                                   [--modes ...] [--lods ...] [--sizes ...] [run options]
+                                   # there (benchmarks/gpu_real.sh --build): make, then time
     python benchmarks/gpu_real.py run CASES OUT [--budget-s 420] [--views 512x512] [--warm 3]
-                                  [--timed 20]                     # there (benchmarks/gpu_real.sh)
+                                  [--timed 20]                     # time cases made before
 
-A run on the GPU machine carries the repository's working tree (tracked files and untracked ones
-git does not ignore), one folder of the cases (gpu_pack.py's .carry/N, from gpu_cases.py's), the
-wheels (.whl) and, where the machine lacks EGL, the GL/EGL packages (.gl): 64 MiB in all per call
-(CARRY_LIMIT); ``payload`` adds them up and fails past CARRY_LIMIT less MARGIN.
+One call to the GPU machine carries the repository's working tree (tracked files and untracked
+ones git does not ignore), the shared .vdb files (.data), the wheels the machine's Python lacks
+(.whl: moderngl, glcontext, blosc for the blosc-compressed files) and, where the machine lacks
+EGL, the GL/EGL packages (.gl): 64 MiB in all (CARRY_LIMIT); ``payload`` adds them up and fails
+past CARRY_LIMIT less MARGIN. ``build`` makes every case there (gpu_cases.build: the kernels
+compiled once, then the files' LODs in processes sharing the cores; the cases go to a folder
+outside OUT, so only the results come back), then times them in what is left of --budget-s
+(cases not made within --build-budget-s, default --budget-s less --time-reserve-s, are listed as
+skipped, as are cases not timed in time).
 
 Per case and view: the upload of the scene's tables (ms, wall clock to glFinish, median of 3), the
 screen-tile lists' three passes with their counts' readback (ms, wall clock, median of 5; the
@@ -25,7 +34,8 @@ CPU's, which the case does not hold: not timed), tables past its texture size, s
 redrawn on the CPU (a ray past the 160 hit slots of the chord cap, or a loop cut short): per
 row in ``fallbacks`` and summed over the run. Each row also gives its CPU seconds apart (reading
 the case, PSNR) from the GL work, for scaling a software run to a GPU. Writes OUT/gpu_real.json
-and OUT/gpu_real.md; cases not started within --budget-s are listed as skipped.
+and OUT/gpu_real.md (with ``build``: the making's figures too, ``build`` in the JSON); cases not
+started within the budget are listed as skipped.
 """
 from __future__ import annotations
 
@@ -44,11 +54,14 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 NVIDIA_EGL = "/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json"
-WHEELS = ("moderngl==5.13.0", "glcontext==3.1.0")
+WHEELS = ("moderngl==5.13.0", "glcontext==3.1.0", "blosc==1.11.4")  # (blosc: the reader's gate
+# for blosc-compressed grids, kernels/vdb/reader.py)
 WARM, TIMED = 3, 20
 ROOT = os.path.dirname(HERE)
 CARRY_LIMIT = 64 * 2 ** 20  # what one call to the GPU machine carries: working tree + carried paths
 MARGIN = 4 * 2 ** 20
+DATA = ".data"  # the shared .vdb files, copied here by prepare
+TIME_RESERVE = 180.0  # seconds of a build run kept for the timing
 FALLBACKS = ("frame_to_cpu", "cpu_tile_lists", "texture_too_large", "chord_cap_tiles")
 
 
@@ -70,17 +83,28 @@ def folder_bytes(path):
     return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(path) for f in fs)
 
 
-def payload(cases, wheels=".whl", gl=".gl", root=ROOT):
-    """{part: bytes} of what one run carries, and 'total'."""
+def payload(data=DATA, wheels=".whl", gl=".gl", root=ROOT):
+    """{part: bytes} of what the call carries, and 'total'."""
     parts = {"working tree": tree_bytes(root)}
-    for name in (cases, wheels, gl):
+    for name in (data, wheels, gl):
         parts[name] = folder_bytes(os.path.join(root, name))
     parts["total"] = sum(parts.values())
     return parts
 
 
-def prepare(wheels):
-    """Download the moderngl and glcontext wheels for the GPU machine's Python 3.12."""
+def shared_files(data_dir=None):
+    """The shared .vdb files (gpu_cases.DATA_DIR), sorted."""
+    import gpu_cases
+
+    d = data_dir or gpu_cases.DATA_DIR
+    return sorted(os.path.join(d, f) for f in os.listdir(d) if f.endswith(".vdb")) if os.path.isdir(d) else []
+
+
+def prepare(wheels, data=DATA):
+    """The wheels for the GPU machine's Python 3.12 (moderngl, glcontext, blosc) downloaded, and
+    the shared .vdb files copied into data (both ignored by git: carried by name)."""
+    import shutil
+
     os.makedirs(wheels, exist_ok=True)
     plats = [a for p in ("manylinux2014_x86_64", "manylinux_2_17_x86_64", "manylinux_2_28_x86_64",
                          "manylinux1_x86_64", "manylinux_2_5_x86_64") for a in ("--platform", p)]
@@ -88,15 +112,24 @@ def prepare(wheels):
                     "--python-version", "3.12", "--implementation", "cp", *plats, *WHEELS, "-d", wheels],
                    check=True)
     print(f"{folder_bytes(wheels) / 2 ** 20:.2f} MiB of wheels in {wheels}")
+    files = shared_files()
+    if not files:
+        raise SystemExit("gpu_real: no shared .vdb files to copy")
+    os.makedirs(data, exist_ok=True)
+    for f in files:
+        dst = os.path.join(data, os.path.basename(f))
+        if not (os.path.exists(dst) and os.path.getsize(dst) == os.path.getsize(f)):
+            shutil.copyfile(f, dst)
+    print(f"{folder_bytes(data) / 2 ** 20:.2f} MiB of .vdb files in {data} ({len(files)})")
     return 0
 
 
-def report_payload(cases, wheels=".whl", gl=".gl"):
-    """Print what one call carrying these cases carries, in MiB; 1 where past the limit."""
-    parts = payload(cases, wheels, gl)
+def report_payload(data=DATA, wheels=".whl", gl=".gl"):
+    """Print what the call carries, in MiB; 1 where past the limit."""
+    parts = payload(data, wheels, gl)
     print(json.dumps({k: round(v / 2 ** 20, 2) for k, v in parts.items()}) + " MiB")
     if parts["total"] > CARRY_LIMIT - MARGIN:
-        print(f"over {(CARRY_LIMIT - MARGIN) / 2 ** 20:.0f} MiB: carry fewer cases per call")
+        print(f"over {(CARRY_LIMIT - MARGIN) / 2 ** 20:.0f} MiB: the call cannot carry it")
         return 1
     return 0
 
@@ -203,8 +236,9 @@ def table(rows, renderer, software):
     return "\n".join(out) + "\n"
 
 
-def run(cases, out, budget_s, views=None, warm=WARM, timed=TIMED):
-    """Every case's views (those in views, None: all) measured; OUT/gpu_real.json and .md."""
+def run(cases, out, budget_s, views=None, warm=WARM, timed=TIMED, build=None):
+    """Every case's views (those in views, None: all) measured; OUT/gpu_real.json and .md
+    (build: the making's figures, gpu_cases.build's, written beside them)."""
     import gl_backend as B
 
     if os.path.exists(NVIDIA_EGL):
@@ -244,15 +278,61 @@ def run(cases, out, budget_s, views=None, warm=WARM, timed=TIMED):
            "timer": f"GL_TIME_ELAPSED, median of {timed} after {warm} warm-ups",
            "fallbacks": fallbacks, "rows": rows, "skipped": skipped,
            "seconds": round(time.perf_counter() - t0, 1)}
+    if build is not None:
+        res["build"] = build
     with open(os.path.join(out, "gpu_real.json"), "w") as fh:
         json.dump(res, fh, indent=1)
     md = table(rows, gl.renderer, software) + (
         f"\nFallbacks to the CPU device: {json.dumps(fallbacks)}; skipped (budget): {len(skipped)}; "
         f"run {res['seconds']} s.\n")
+    if build is not None:
+        md += (f"\nCases made here from the .vdb files: {build['cases']} in {build['seconds']} s "
+               f"({build['jobs']} processes x {build['threads']} numba threads; kernels compiled "
+               f"in {build['warm_seconds']} s first; {build['case_seconds']} CPU-process seconds "
+               f"over the cases), {len(build['skipped'])} not made (budget), "
+               f"{len(build.get('failed', {}))} failed{'; ' + build['error'] if 'error' in build else ''}.\n")
     with open(os.path.join(out, "gpu_real.md"), "w") as fh:
         fh.write(md)
     print(md)
     return 0
+
+
+def build_and_run(data, out, budget_s, build_budget_s=None, jobs=None, threads=None, cases_dir=None,
+                  modes=None, lods=None, sizes=None, views=None, warm=WARM, timed=TIMED):
+    """The cases made from data's .vdb files (gpu_cases.build) in a folder outside out, then timed
+    (run) in what is left of budget_s."""
+    import tempfile
+
+    import gpu_cases
+
+    t0 = time.perf_counter()
+    files = shared_files(data)
+    if not files:
+        raise SystemExit(f"gpu_real: no .vdb files in {data}")
+    cases_dir = cases_dir or tempfile.mkdtemp(prefix="gaussvdb-cases-")
+    modes = modes or list(gpu_cases.MODES)
+    lods = lods or ["low", "medium", "high"]
+    sizes = gpu_cases.parse_sizes(sizes or "512x512,1920x1080")
+    cases = list(gpu_cases.shared_cases(files, modes, lods))
+    if jobs is None:  # (a unit per process at most; the cores shared out)
+        cores = os.cpu_count() or 1
+        jobs = max(1, min(len(gpu_cases.units(cases)), cores // 2 if cores >= 4 else cores))
+    if build_budget_s is None:
+        build_budget_s = max(budget_s - TIME_RESERVE, budget_s / 2)
+    try:
+        made = gpu_cases.build(cases_dir, cases, sizes, {(512, 512)}, jobs, threads, build_budget_s)
+    except Exception as e:  # noqa: BLE001  (one call: time what was made, say why the rest is not)
+        made = {"error": f"{type(e).__name__}: {e}", "seconds": round(time.perf_counter() - t0, 1),
+                "warm_seconds": None, "jobs": jobs, "threads": threads, "case_seconds": None, "skipped": [],
+                "cases": len(glob.glob(os.path.join(cases_dir, "*.npz")))}
+    made["files"] = [os.path.basename(f) for f in files]
+    print(json.dumps({k: v for k, v in made.items() if k != "each"}), flush=True)
+    left = budget_s - (time.perf_counter() - t0)
+    return run(cases_dir, out, left, views, warm, timed, build=made)
+
+
+def _names(text):
+    return [x for x in text.split(",") if x] if text else None
 
 
 def main(argv=None):
@@ -260,21 +340,36 @@ def main(argv=None):
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("prepare")
     p.add_argument("--wheels", default=".whl")
+    p.add_argument("--data", default=DATA)
     q = sub.add_parser("payload")
-    q.add_argument("cases")
+    q.add_argument("--data", default=DATA)
     r = sub.add_parser("run")
     r.add_argument("cases")
-    r.add_argument("out")
-    r.add_argument("--budget-s", type=float, default=420.0)
-    r.add_argument("--views", default=None, help="only these views, e.g. 512x512 (default: all)")
-    r.add_argument("--warm", type=int, default=WARM)
-    r.add_argument("--timed", type=int, default=TIMED)
+    b = sub.add_parser("build")
+    b.add_argument("data")
+    b.add_argument("--build-budget-s", type=float, default=None,
+                   help=f"cases not started by then are not made (default: --budget-s less {TIME_RESERVE:.0f})")
+    b.add_argument("--jobs", type=int, default=None, help="processes making the cases (default: half the cores)")
+    b.add_argument("--threads", type=int, default=None, help="numba threads each (default: the cores shared out)")
+    b.add_argument("--cases", default=None, help="where the cases go (default: a new temporary folder)")
+    b.add_argument("--modes", default=None)
+    b.add_argument("--lods", default=None)
+    b.add_argument("--sizes", default=None)
+    for x, budget in ((r, 420.0), (b, 450.0)):
+        x.add_argument("out")
+        x.add_argument("--budget-s", type=float, default=budget)
+        x.add_argument("--views", default=None, help="only these views, e.g. 512x512 (default: all)")
+        x.add_argument("--warm", type=int, default=WARM)
+        x.add_argument("--timed", type=int, default=TIMED)
     a = ap.parse_args(argv)
     if a.cmd == "prepare":
-        return prepare(a.wheels)
+        return prepare(a.wheels, a.data)
     if a.cmd == "payload":
-        return report_payload(a.cases)
+        return report_payload(a.data)
     views = set(a.views.split(",")) if a.views else None
+    if a.cmd == "build":
+        return build_and_run(a.data, a.out, a.budget_s, a.build_budget_s, a.jobs, a.threads, a.cases,
+                             _names(a.modes), _names(a.lods), a.sizes, views, a.warm, a.timed)
     return run(a.cases, a.out, a.budget_s, views, a.warm, a.timed)
 
 

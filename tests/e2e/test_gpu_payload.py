@@ -1,14 +1,7 @@
-"""What each run on the GPU machine carries (the working tree, one folder of the packed cases of
-the shared files, every mode and LOD at 512x512 and 1920x1080, the moderngl/glcontext wheels and
-the EGL/GL packages) stays under the 64 MiB a call may carry, with gpu_real.MARGIN to spare, and
-the folders together hold every shared case.
-
-Making every case takes far longer than a test may (each LOD of each file built, the CPU device's
-image of each case drawn), so the folders' sizes come from the record the full set's commands
-wrote (benchmarks/gpu_payload.json: ``python benchmarks/gpu_cases.py .cases`` then ``python
-benchmarks/gpu_pack.py .cases .carry --record benchmarks/gpu_payload.json``); the working tree is
-measured now, and one small case is made again here and must still have its recorded size (a
-change to what a case holds fails it: then make the set and the record again)."""
+"""The GPU machine's run is one call: it carries the working tree, the shared .vdb files (.data),
+the wheels its Python lacks (.whl: moderngl, glcontext, blosc) and the EGL/GL packages (.gl), under
+the 64 MiB a call may carry with gpu_real.MARGIN to spare, and makes every shared case there
+(gpu_cases.build, no Blender) before timing them."""
 import json
 import os
 import subprocess
@@ -22,42 +15,60 @@ sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
 import gpu_cases  # noqa: E402
 import gpu_real  # noqa: E402
 
-RECORD = os.path.join(ROOT, "benchmarks", "gpu_payload.json")
-SMALL = ("mantaflow_fire_r96_f035.vdb", "reference", "voxels")
-
-
-def _record():
-    with open(RECORD) as f:
-        return json.load(f)
+# what `gpu_real.py prepare` left in .whl and the .gl packages weighed (bytes), for a checkout
+# that has not prepared them
+RECORDED = {".whl": 3_085_842, ".gl": 376_104}
+LODS = ["low", "medium", "high"]
 
 
 def _shared():
-    if not os.path.isdir(DATA_DIR):
+    files = gpu_real.shared_files()
+    if not files:
         pytest.skip("no shared data")
-    return sorted(os.path.join(DATA_DIR, f) for f in os.listdir(DATA_DIR) if f.endswith(".vdb"))
+    return files
 
 
-def test_the_record_covers_every_shared_case():
-    carried = {n for g in _record()["groups"] for n in g["names"]}
-    missing = []
-    for src, mode, lod in gpu_cases.shared_cases(_shared(), gpu_cases.MODES, ["low", "medium", "high"]):
-        name = gpu_cases.case_name(src, mode, lod)
-        if name not in carried and name[:-4] + ".fallback.json" not in carried:
-            missing.append(name)
-    assert not missing, f"cases in no folder of {RECORD}: {missing}"
-
-
-def test_each_call_fits():
-    """Each folder gpu_pack.py made, with the working tree as it is now and the wheels and GL
-    packages (measured where present here, else as recorded), under the limit less the margin."""
-    rec = _record()
-    fixed = gpu_real.tree_bytes()
+def test_the_one_call_fits():
+    """The working tree as it is now, the shared files (those in .data where prepared, else the
+    shared folder's), the wheels and the GL packages (measured where present, else as recorded)."""
+    files = _shared()
+    parts = {"working tree": gpu_real.tree_bytes(),
+             ".data": gpu_real.folder_bytes(os.path.join(ROOT, gpu_real.DATA))
+             or sum(os.path.getsize(f) for f in files)}
     for name in (".whl", ".gl"):
-        fixed += gpu_real.folder_bytes(os.path.join(ROOT, name)) or rec["fixed"][name]
-    assert rec["fixed"][".whl"] > 0, "the record must count the wheels (gpu_real.py prepare first)"
-    over = [(g["folder"], round((fixed + g["bytes"]) / 2 ** 20, 1)) for g in rec["groups"]
-            if fixed + g["bytes"] > gpu_real.CARRY_LIMIT - gpu_real.MARGIN]
-    assert not over, f"calls past {(gpu_real.CARRY_LIMIT - gpu_real.MARGIN) / 2 ** 20} MiB: {over}"
+        parts[name] = gpu_real.folder_bytes(os.path.join(ROOT, name)) or RECORDED[name]
+    total = sum(parts.values())
+    assert total <= gpu_real.CARRY_LIMIT - gpu_real.MARGIN, {k: round(v / 2 ** 20, 1) for k, v in parts.items()}
+    if os.path.isdir(os.path.join(ROOT, gpu_real.DATA)):  # what payload reports is the same sum
+        assert gpu_real.payload()["total"] == total
+
+
+def test_every_shared_case_is_made_there():
+    """build's units (a file's LOD each, reference with Low's load) hold every shared case once,
+    largest first."""
+    files = _shared()
+    cases = list(gpu_cases.shared_cases(files, gpu_cases.MODES, LODS))
+    assert len(cases) == len(files) * (1 + 4 * len(LODS))
+    us = gpu_cases.largest_first(gpu_cases.units(cases))
+    assert len(us) == len(files) * len(LODS)
+    flat = [c for _, cs in us for c in cs]
+    assert sorted(flat) == sorted(cases)
+    for (src, lod), cs in us:
+        assert all(c[0] == src and (c[2] == lod or (c[2] == "voxels" and lod == "low")) for c in cs)
+    biggest = max(files, key=os.path.getsize)
+    assert us[0][0] == (biggest, "high")
+
+
+def test_cores_shared_out():
+    assert gpu_cases.share_cores(8, cores=16) == (8, 2)
+    assert gpu_cases.share_cores(3, cores=16) == (3, 5)
+    assert gpu_cases.share_cores(4, 3, cores=16) == (4, 3)
+    assert gpu_cases.share_cores(32, cores=16) == (32, 1)
+
+
+def test_the_run_script_parses():
+    r = subprocess.run(["sh", "-n", os.path.join(ROOT, "benchmarks", "gpu_real.sh")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
 
 
 def test_packed_cpu_image_round_trip(tmp_path):
@@ -80,40 +91,27 @@ def test_packed_cpu_image_round_trip(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_small_case_has_its_recorded_size(tmp_path):
-    src = os.path.join(DATA_DIR, SMALL[0])
+def test_cases_made_without_blender_in_two_processes(tmp_path):
+    """The fire's cases as the GPU machine makes them: no bpy in any process (a bpy that fails to
+    import comes first on the path), two processes after the kernels are compiled in one; each
+    case reads back in the standalone backend with its 512x512 CPU image."""
+    src = os.path.join(DATA_DIR, "mantaflow_fire_r96_f035.vdb")
     if not os.path.exists(src):
         pytest.skip("no shared data")
-    name = gpu_cases.case_name(src, SMALL[1], SMALL[2])
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "gpu_cases.py"), str(tmp_path), src,
-                        "--modes", SMALL[1], "--lods", "low"], cwd=ROOT, capture_output=True, text=True,
-                       timeout=600)
+    block = tmp_path / "block"
+    block.mkdir()
+    (block / "bpy.py").write_text("raise ImportError('bpy imported')\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(block), ROOT]))
+    out = tmp_path / "cases"
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "gpu_cases.py"), str(out), src,
+                        "--modes", "reference,splat", "--lods", "low,medium", "--sizes", "512x512",
+                        "--jobs", "2", "--threads", "1"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=900, env=env)
     assert r.returncode == 0, r.stderr[-3000:]
-    size, recorded = os.path.getsize(tmp_path / name), _record()["saved"][name]
-    assert abs(size - recorded) <= 0.05 * recorded + 65536, (size, recorded)
-
-
-def test_packed_folder_reads_back_the_saved_tables(tmp_path):
-    """gpu_pack.py's pool (tables stored once, as byte planes) gives gl_backend.Case the arrays
-    the cases saved, bit for bit."""
+    rec = json.loads((out / "build.json").read_text())
+    assert rec["jobs"] == 2 and rec["cases"] == 3 and not rec["skipped"] and rec["warm_seconds"] is not None
     import gl_backend
-    import gpu_pack
 
-    rng = np.random.default_rng(2)
-    big = rng.random((40, 512, 4)).astype(np.float32)  # past POOL_MIN: pooled, shared
-    info = {"views": [{"name": "8x8", "width": 8, "height": 8}]}
-    src = tmp_path / "src"
-    src.mkdir()
-    for i in range(2):
-        own = rng.random((3, 4)).astype(np.float32)
-        np.savez_compressed(src / f"f.m{i}.low.npz", **{"t.big": big, "t.own": own, "8x8.t.own": own + 1,
-                                                          "case.json": np.array(json.dumps(info))})
-    gpu_pack.write(sorted(str(p) for p in src.glob("*.npz")), str(tmp_path / "dst"))
-    for i in range(2):
-        with np.load(src / f"f.m{i}.low.npz") as z:
-            want = {"big": z["t.big"], "own": z["8x8.t.own"]}  # (the view's own table first)
-        case = gl_backend.Case(str(tmp_path / "dst" / f"f.m{i}.low.npz"))
-        assert case.pooled == {"t.big": gpu_pack._key(big)}
-        got = case.tables("8x8")
-        assert set(got) == set(want) and all(np.array_equal(got[k], want[k]) for k in want)
-    gl_backend._POOLS.clear()
+    for name in json.loads((out / "sizes.json").read_text()):
+        case = gl_backend.Case(str(out / name))
+        assert case.cpu("512x512").shape == (512, 512, 4)
