@@ -3,6 +3,8 @@ down to the per-pixel code, cpu.per_mode), drawn on Python threads (the kernels 
 CPUDevice calls render_rows."""
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from ...jit import njit
@@ -38,36 +40,37 @@ def mode_entry(mode):
     return _ENTRIES[mode]
 
 
-def band_order(row0, row1, threads):
-    """The bands of screen-tile rows over [row0, row1) in the order 0, T, 2T, ..., 1, T + 1, ...
-    for T threads, split into T contiguous blocks: thread k draws every T-th tile row and all
-    sample the whole image or band (an object in the top half of a band would otherwise all go to
-    one thread: F12 bands took up to 1.9x one call)."""
-    b0 = row0 // TILE
-    nb = (row1 - 1) // TILE - b0 + 1 if row1 > row0 else 0
-    t = max(1, min(int(threads), nb))
-    order = np.concatenate([np.arange(r, nb, t, dtype=np.int64) for r in range(t)]) + b0
-    return [blk for blk in np.array_split(order, t) if blk.size]
-
-
 def render_rows(mode, cam, row0, row1, col0, col1, gauss, objs, accel, xfer, out, threads):
     """Render rows [row0, row1) and columns [col0, col1) into out (packing.Output, indexed from
     0 = row0, col0) in ``mode``, on ``threads`` threads (the kernels release the GIL; every
     pixel is computed alone, so the image does not depend on the count). Python threads, not a
-    parallel numba loop: the loop's compilation cost a first frame ~10 s more."""
+    parallel numba loop: the loop's compilation cost a first frame ~10 s more. Each thread takes
+    the next row of screen tiles when it is done with one (a call costs ~12 us), so a band where
+    the object covers only some rows still keeps every thread busy to its end."""
     from concurrent.futures import ThreadPoolExecutor
 
     draw = mode_entry(mode)
-    blocks = band_order(row0, row1, threads)
+    b0 = row0 // TILE
+    nb = (row1 - 1) // TILE - b0 + 1 if row1 > row0 else 0
+    bands = np.arange(b0, b0 + nb, dtype=np.int64).reshape(nb, 1)
     args = (row0, row1, col0, col1, cam, gauss, objs, accel, xfer, out)
-    if len(blocks) <= 1:
-        for blk in blocks:
-            draw(blk, *args)
+    helpers = max(1, min(int(threads), nb)) - 1
+    if helpers == 0:
+        if nb:
+            draw(bands.ravel(), *args)
         return
+    taken = itertools.count()  # (next() on it is atomic under the GIL)
+
+    def work():
+        for q in iter(lambda: next(taken), None):
+            if q >= nb:
+                return
+            draw(bands[q], *args)
+
     pool = _POOL.get("pool")
-    if pool is None or pool._max_workers < len(blocks) - 1:
-        pool = _POOL["pool"] = ThreadPoolExecutor(len(blocks) - 1, thread_name_prefix="gaussvdb-render")
-    done = [pool.submit(draw, blk, *args) for blk in blocks[1:]]
-    draw(blocks[0], *args)
+    if pool is None or pool._max_workers < helpers:
+        pool = _POOL["pool"] = ThreadPoolExecutor(helpers, thread_name_prefix="gaussvdb-render")
+    done = [pool.submit(work) for _ in range(helpers)]
+    work()
     for f in done:
         f.result()
