@@ -13,9 +13,11 @@ import os
 import shutil
 import subprocess
 import sys
-import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from conftest import ROOT
+
+sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+from bench_cold_start import touch_all  # noqa: E402  (a reinstall: what the bench measures too)
 
 CHILD = r"""
 import json, os, sys
@@ -57,19 +59,6 @@ def _compiled(src, cache):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _rewrite_all(folder, ahead):
-    """Every file written again with the same bytes and an mtime ``ahead`` seconds on."""
-    for here, _, names in os.walk(folder):
-        for name in names:
-            path = os.path.join(here, name)
-            with open(path, "rb") as fh:
-                data = fh.read()
-            with open(path, "wb") as fh:
-                fh.write(data)
-            t = time.time() + ahead
-            os.utime(path, (t, t))
-
-
 def test_upgrade_with_the_same_files_keeps_compiled_kernels(tmp_path):
     src, cache = tmp_path / "src", tmp_path / "cache"
     kernels = src / "kernels"
@@ -78,12 +67,12 @@ def test_upgrade_with_the_same_files_keeps_compiled_kernels(tmp_path):
     assert "_popcount" in _compiled(src, cache)  # cold: compiles
     assert _compiled(src, cache) == []  # warm
 
-    _rewrite_all(kernels, 1000.0)  # a reinstall: the same files, new mtimes
+    touch_all(kernels, 1000.0)  # a reinstall: the same files, new mtimes
     assert _compiled(src, cache) == []
     shutil.rmtree(kernels)  # a fresh copy (new inodes, new mtimes)
     shutil.copytree(os.path.join(ROOT, "kernels"), kernels,
                     ignore=shutil.ignore_patterns("__pycache__"))
-    _rewrite_all(kernels, 2000.0)
+    touch_all(kernels, 2000.0)
     assert _compiled(src, cache) == []
 
     with open(kernels / "lod" / "fit.py", "a") as fh:  # another subpackage changed: kept
