@@ -157,7 +157,10 @@ def run_on_threads(tasks: int, work, threads: int | None = None):
         loop()
     finally:
         for f in done:
-            f.result()
+            # a helper still queued (the pool busy, or this a pool thread itself) has nothing
+            # left to take: cancelled, never waited for
+            if not f.cancel():
+                f.result()
 
 
 def parallel_for(kernel, n: int, *args, threads: int | None = None, chunks_per_thread: int = 4):

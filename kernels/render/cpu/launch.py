@@ -3,11 +3,9 @@ down to the per-pixel code, cpu.per_mode), drawn on Python threads (the kernels 
 CPUDevice calls render_rows."""
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
-from ...jit import njit
+from ...jit import njit, run_on_threads
 from ..inputs.layout import TILE
 from ..scene.objects import Mode
 from .pixels import render_band
@@ -29,7 +27,6 @@ def _band_entry(mode):
 
 
 _ENTRIES = {}  # Mode -> its band kernel (made on first use; compiled, or loaded, on first call)
-_POOL = {}  # "pool": the threads bands are drawn on (grown to the most threads asked for)
 
 
 def mode_entry(mode):
@@ -47,30 +44,13 @@ def render_rows(mode, cam, row0, row1, col0, col1, gauss, objs, accel, xfer, out
     parallel numba loop: the loop's compilation cost a first frame ~10 s more. Each thread takes
     the next row of screen tiles when it is done with one (a call costs ~12 us), so a band where
     the object covers only some rows still keeps every thread busy to its end."""
-    from concurrent.futures import ThreadPoolExecutor
-
     draw = mode_entry(mode)
     b0 = row0 // TILE
     nb = (row1 - 1) // TILE - b0 + 1 if row1 > row0 else 0
     bands = np.arange(b0, b0 + nb, dtype=np.int64).reshape(nb, 1)
     args = (row0, row1, col0, col1, cam, gauss, objs, accel, xfer, out)
-    helpers = max(1, min(int(threads), nb)) - 1
-    if helpers == 0:
+    if min(int(threads), nb) <= 1:
         if nb:
             draw(bands.ravel(), *args)
         return
-    taken = itertools.count()  # (next() on it is atomic under the GIL)
-
-    def work():
-        for q in iter(lambda: next(taken), None):
-            if q >= nb:
-                return
-            draw(bands[q], *args)
-
-    pool = _POOL.get("pool")
-    if pool is None or pool._max_workers < helpers:
-        pool = _POOL["pool"] = ThreadPoolExecutor(helpers, thread_name_prefix="gaussvdb-render")
-    done = [pool.submit(work) for _ in range(helpers)]
-    work()
-    for f in done:
-        f.result()
+    run_on_threads(nb, lambda q: draw(bands[q], *args), threads)

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ...jit import njit, parallel_njit, prange
+from ...jit import njit, parallel_for
 from ..inputs.layout import (
     CB,
     CG,
@@ -233,16 +233,21 @@ def ray_tau(voxels, px, py, pz, dx, dy, dz, tmax, gauss, wext, objs, accel, xfer
     return tau
 
 
-@parallel_njit(**_jit)
 def shadow_grid(voxels, pts_ob, pts, i2w, gauss, wext, objs, accel, xfer, out):
     """out[p, l] = the optical depth from grid point p (index point pts[p] of object pts_ob[p])
     towards light l, through every volume of the frame."""
+    parallel_for(_shadow_grid, pts.shape[0], voxels, pts_ob, pts, i2w, gauss, wext, objs, accel,
+                 xfer, out)
+
+
+@njit(**_jit)
+def _shadow_grid(p0, p1, voxels, pts_ob, pts, i2w, gauss, wext, objs, accel, xfer, out):
     lights = xfer.lights
-    for p in prange(pts.shape[0]):
-        mw = accel.max_walk
-        iv_ta, iv_tb = np.empty(mw), np.empty(mw)
-        iv_obj, iv_cell = np.empty(mw, np.int32), np.empty(mw, np.int32)
-        ro, rd, lastc, samp = np.empty(3), np.empty(3), np.empty(3, np.int64), np.empty(5)
+    mw = accel.max_walk  # one ray's scratch, written before it is read
+    iv_ta, iv_tb = np.empty(mw), np.empty(mw)
+    iv_obj, iv_cell = np.empty(mw, np.int32), np.empty(mw, np.int32)
+    ro, rd, lastc, samp = np.empty(3), np.empty(3), np.empty(3, np.int64), np.empty(5)
+    for p in range(p0, p1):
         A = i2w[pts_ob[p]]
         x, y, z = pts[p, 0], pts[p, 1], pts[p, 2]
         wx = A[0, 0] * x + A[0, 1] * y + A[0, 2] * z + A[0, 3]
@@ -258,13 +263,18 @@ def shadow_grid(voxels, pts_ob, pts, i2w, gauss, wext, objs, accel, xfer, out):
                                 xfer, iv_ta, iv_tb, iv_obj, iv_cell, ro, rd, lastc, samp) if ok else 0.0
 
 
-@parallel_njit(**_jit)
 def centre_gradients(cstart, pg, cg_start, cg_items, mu, inv, fw, k2, out):
     """Particles mode's lit volumes: out[g] = (the gradient at g's centre of the field of the other
     Gaussians of its object, g's own field weight). Cells c (those holding a centre): their pairs
     pg[cstart[c]:cstart[c + 1]] (every Gaussian whose k-sigma box meets the cell) and the
     Gaussians centred there, cg_items[cg_start[c]:cg_start[c + 1]]."""
-    for c in prange(cstart.shape[0] - 1):
+    parallel_for(_centre_gradients, cstart.shape[0] - 1, cstart, pg, cg_start, cg_items, mu, inv, fw,
+                 float(k2), out)
+
+
+@njit(**_jit)
+def _centre_gradients(c0, c1, cstart, pg, cg_start, cg_items, mu, inv, fw, k2, out):
+    for c in range(c0, c1):
         for a in range(cg_start[c], cg_start[c + 1]):
             g = cg_items[a]
             x, y, z = mu[g, 0], mu[g, 1], mu[g, 2]

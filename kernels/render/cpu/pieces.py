@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ...jit import njit, parallel_njit, prange
+from ...jit import njit, parallel_for
 from ..inputs.layout import (
     BG_DEPTH,
     BRICK_HI,
@@ -39,11 +39,15 @@ from .vecmath import (
 )
 
 
-@parallel_njit(**_jit)
 def lut_rows(lut, x, out):
     """out[n] = the first out.shape[1] columns of lut interpolated at x[n] in [0, 1] (clamped; NaN:
     zeros): the per-frame colours and opacities of every Gaussian, in parallel."""
-    for n in prange(x.shape[0]):
+    parallel_for(_lut_rows, x.shape[0], lut, x, out)
+
+
+@njit(**_jit)
+def _lut_rows(n0, n1, lut, x, out):
+    for n in range(n0, n1):
         xn = x[n]
         if xn != xn:
             out[n, :] = 0.0

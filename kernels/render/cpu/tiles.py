@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ...jit import njit, parallel_njit, prange
+from ...jit import njit, parallel_for
 from ..inputs.layout import (
     CAM_EX,
     CAM_EY,
@@ -91,18 +91,22 @@ def _straddle_range(c, cz, sxx, sxz, szz, off, ext):
     return hi + 1.0, lo - 1.0  # neither: no pixel (_px_range: empty when lo > hi)
 
 
-@parallel_njit(**_jit)
 def gauss_footprints(cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
     """Per Gaussian: box = pixel rectangle (i0, i1, j0, j1; empty when i0 > i1 or j0 > j1) and lb =
     a lower bound of the ray parameter where rays enter its k-sigma support.
     cmat[ob] (3x4): index space -> camera coordinates (the camera basis inverse times the object's
     index-to-world matrix, translation relative to the camera position); onorm[ob]: the spectral
     norm of the object's index-to-world linear part."""
+    parallel_for(_footprints, g_mu.shape[0], cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, float(k), box, lb)
+
+
+@njit(**_jit)
+def _footprints(g0, g1, cam, cmat, onorm, g_mu, g_inv, g_obj, g_w, k, box, lb):
     W = int(cam[CAM_W])
     H = int(cam[CAM_H])
     ex, ey, offx, offy = cam[CAM_EX], cam[CAM_EY], cam[CAM_OX], cam[CAM_OY]
     ortho = cam[CAM_KIND] > 0.5
-    for g in prange(g_mu.shape[0]):
+    for g in range(g0, g1):
         box[g, 0] = 1
         box[g, 1] = 0
         box[g, 2] = 1
@@ -163,35 +167,51 @@ def tile_span(box, g):
     return box[g, 0] // TILE, box[g, 1] // TILE, box[g, 2] // TILE, box[g, 3] // TILE
 
 
-@parallel_njit(**_jit)
 def tile_counts(box, ntx, nty):
     """Entries per Gaussian chunk and tile: cnt[c, t]."""
-    m = box.shape[0]
     cnt = np.zeros((NCHUNK, ntx * nty), np.int64)
-    for c in prange(NCHUNK):
+    parallel_for(_tile_counts, NCHUNK, box, np.int64(ntx), cnt)
+    return cnt
+
+
+@njit(**_jit)
+def _tile_counts(c0, c1, box, ntx, cnt):
+    m = box.shape[0]
+    for c in range(c0, c1):
         for g in range(c * m // NCHUNK, (c + 1) * m // NCHUNK):
             tx0, tx1, ty0, ty1 = tile_span(box, g)
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
                     cnt[c, ty * ntx + tx] += 1
-    return cnt
 
 
-@parallel_njit(**_jit)
 def tile_fill(box, lb, cnt, start, ntx):
     """Tile lists (tile t: items[start[t]:start[t + 1]], start from cnt's column sums), each sorted
     by (lb, id): Gaussian ids (int32) and per entry the mask of the tile's pixels in its rectangle
     (int64, bit TILE * (j % TILE) + i % TILE for pixel column i, row j)."""
     items = np.empty(start[-1], np.int32)
     masks = np.empty(start[-1], np.int64)
-    m = box.shape[0]
     fill = np.empty_like(cnt)
-    for t in prange(cnt.shape[1]):
+    parallel_for(_chunk_starts, cnt.shape[1], cnt, start, fill)
+    parallel_for(_scatter, NCHUNK, box, np.int64(ntx), fill, items)
+    parallel_for(_sort_masks, start.shape[0] - 1, box, lb, start, np.int64(ntx), items, masks)
+    return items, masks
+
+
+@njit(**_jit)
+def _chunk_starts(t0, t1, cnt, start, fill):
+    """Where each Gaussian chunk's entries of tile t begin: chunk by chunk keeps id order."""
+    for t in range(t0, t1):
         acc = start[t]
         for c in range(NCHUNK):
             fill[c, t] = acc
             acc += cnt[c, t]
-    for c in prange(NCHUNK):
+
+
+@njit(**_jit)
+def _scatter(c0, c1, box, ntx, fill, items):
+    m = box.shape[0]
+    for c in range(c0, c1):
         for g in range(c * m // NCHUNK, (c + 1) * m // NCHUNK):
             tx0, tx1, ty0, ty1 = tile_span(box, g)
             for ty in range(ty0, ty1 + 1):
@@ -199,7 +219,12 @@ def tile_fill(box, lb, cnt, start, ntx):
                     t = ty * ntx + tx
                     items[fill[c, t]] = g
                     fill[c, t] += 1
-    for t in prange(start.shape[0] - 1):
+
+
+@njit(**_jit)
+def _sort_masks(t0, t1, box, lb, start, ntx, items, masks):
+    """Each tile's list sorted by (lb, id), and its pixel masks."""
+    for t in range(t0, t1):
         a = start[t]
         b = start[t + 1]
         if b - a > 1:
@@ -216,7 +241,6 @@ def tile_fill(box, lb, cnt, start, ntx):
             for y in range(max(box[g, 2] - y0, 0), min(box[g, 3] - y0, TILE - 1) + 1):
                 bits |= row << (TILE * y)
             masks[q] = bits
-    return items, masks
 
 
 def tile_camera(cam, i2w):

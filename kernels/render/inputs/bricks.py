@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...jit import njit, parallel_njit, prange
+from ...jit import njit, parallel_for
 from ...lod.second_grid import _find
 from .layout import BRICK, LEAF  # a brick: voxels 8c-1 .. 8c+8 per axis
 
@@ -23,9 +23,9 @@ def _span(d):
     return LEAF + 1, 0, 1
 
 
-@parallel_njit(cache=True)
-def _fill(cells, skeys, order, cmin, cdim, val, bg, out, lo, hi):
-    for c in prange(cells.shape[0]):
+@njit(cache=True, nogil=True)
+def _fill(c0, c1, cells, skeys, order, cmin, cdim, val, bg, out, lo, hi):
+    for c in range(c0, c1):
         key = ((cells[c, 0] - cmin[0]) * cdim[1] + (cells[c, 1] - cmin[1])) * cdim[2] + (cells[c, 2] - cmin[2])
         for dx in range(-1, 2):
             bx, sx, nx = _span(dx)
@@ -63,22 +63,27 @@ def leaf_bricks(org, val, background):
     n = cells.shape[0]
     out = np.empty((n, BRICK, BRICK, BRICK), np.float32)
     lo, hi = np.empty(n), np.empty(n)
-    _fill(cells, np.ascontiguousarray(key[order]), order, cmin, cdim, np.ascontiguousarray(val, np.float32),
-          np.float32(background), out, lo, hi)
+    parallel_for(_fill, n, cells, np.ascontiguousarray(key[order]), order, cmin, cdim,
+                 np.ascontiguousarray(val, np.float32), np.float32(background), out, lo, hi)
     return out, lo, hi
 
 
 SUB = 4  # sub-blocks per brick axis for the transparent-sample skip (clear_bits)
 
 
-@parallel_njit(cache=True)
 def sub_max(bricks):
     """float32 (N, 64): per brick and sub-block (sx * 4 + sy) * 4 + sz, the max of the voxels that
     a trilinear sample there reads (NaN ignored: a sample reading one is NaN, drawn as no medium;
     -inf when all are). Sub-block s holds the samples whose stencil starts at brick voxel
     2s or 2s + 1 (s = 3: 6..8), so it reads voxels 2s .. 2s + 2 (6 .. 9)."""
     out = np.empty((bricks.shape[0], SUB ** 3), np.float32)
-    for c in prange(bricks.shape[0]):
+    parallel_for(_sub_max, bricks.shape[0], bricks, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _sub_max(c0, c1, bricks, out):
+    for c in range(c0, c1):
         for sx in range(SUB):
             for sy in range(SUB):
                 for sz in range(SUB):
@@ -90,4 +95,3 @@ def sub_max(bricks):
                                 if v > m:
                                     m = v
                     out[c, (sx * SUB + sy) * SUB + sz] = m
-    return out

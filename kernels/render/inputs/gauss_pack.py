@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ...jit import njit, parallel_njit, prange
+from ...jit import njit, parallel_for
 from .layout import REC_INV, REC_LB, REC_MU, REC_SIZE, REC_W
 
 _jit = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
@@ -32,21 +32,18 @@ def _gaussian(origins, gi, offsets, sigmas, amps, i):
     return ok, (m0, m1, m2), (s0, s1, s2), w
 
 
-@parallel_njit(**_jit)
-def _counts(start, origins, offsets, sigmas, amps):
-    """Drawn Gaussians per group."""
-    ng = start.shape[0] - 1
-    cnt = np.zeros(ng, np.int64)
-    for gi in prange(ng):
+@njit(**_jit)
+def _counts(g0, g1, start, origins, offsets, sigmas, amps, cnt):
+    """Drawn Gaussians per group: cnt[gi] for groups g0..g1-1."""
+    for gi in range(g0, g1):
         c = 0
         for i in range(start[gi], start[gi + 1]):
             c += _gaussian(origins, np.int64(gi), offsets, sigmas, amps, i)[0]
         cnt[gi] = c
-    return cnt
 
 
-@parallel_njit(**_jit)
-def _fill(start, first, origins, offsets, sigmas, amps, values, cvalues, k, max_level, level_cells,
+@njit(**_jit)
+def _fill(g0, g1, start, first, origins, offsets, sigmas, amps, values, cvalues, k, max_level, level_cells,
           level_span, leaf, mu, inv, sig_out, val, cval, amp, lev, clo, chi, gbox):
     """Each group's drawn Gaussians at first[gi]...; gbox[gi] = (centre lo, centre hi, support lo,
     support hi) over them (+-inf when none). values / cvalues: empty when the set has none (NaN).
@@ -55,7 +52,7 @@ def _fill(start, first, origins, offsets, sigmas, amps, values, cvalues, k, max_
     has_c = cvalues.shape[0] > 0
     write = mu.shape[0] > 0
     keep_sig = sig_out.shape[0] > 0
-    for gi in prange(start.shape[0] - 1):
+    for gi in range(g0, g1):
         for a in range(3):
             gbox[gi, 0, a] = np.inf
             gbox[gi, 1, a] = -np.inf
@@ -103,12 +100,16 @@ def _fill(start, first, origins, offsets, sigmas, amps, values, cvalues, k, max_
             j += 1
 
 
-@parallel_njit(**_jit)
 def spheres(mu, inv, ref, obj, k, sph, volfac):
     """Per Gaussian: its bounding sphere for the kernels' cheap rejection, float32 centre relative
     to its object's reference point ref[obj] and squared radius k sigma_max widened by a margin for
     the float32 rounding; and the paper's volume factor 1/det(Sigma) = (prod 1/sigma)^2."""
-    for g in prange(mu.shape[0]):
+    parallel_for(_spheres, mu.shape[0], mu, inv, ref, obj, float(k), sph, volfac)
+
+
+@njit(**_jit)
+def _spheres(g0, g1, mu, inv, ref, obj, k, sph, volfac):
+    for g in range(g0, g1):
         ob = obj[g]
         for a in range(3):
             sph[g, a] = np.float32(mu[g, a] - ref[ob, a])
@@ -119,19 +120,23 @@ def spheres(mu, inv, ref, obj, k, sph, volfac):
         volfac[g] = p * p
 
 
-@parallel_njit(**_jit)
 def test_records(mu, inv):
     """(m, REC_SIZE) rows for the per-ray Gaussian test (layout.REC): centre and 1/sigma, then the weight and entry
     bound (zero here: set per frame). One parallel pass: at 22 M Gaussians the numpy version's
     column copies took 5 s, most of it first touches of the fresh rows."""
     rec = np.empty((mu.shape[0], REC_SIZE))
-    for g in prange(mu.shape[0]):
+    parallel_for(_test_records, mu.shape[0], mu, inv, rec)
+    return rec
+
+
+@njit(**_jit)
+def _test_records(g0, g1, mu, inv, rec):
+    for g in range(g0, g1):
         for a in range(3):
             rec[g, REC_MU + a] = mu[g, a]
             rec[g, REC_INV + a] = inv[g, a]
         rec[g, REC_W] = 0.0
         rec[g, REC_LB] = 0.0
-    return rec
 
 
 def drawn(gs, k, max_level, level_cells, level_span, leaf, sigmas=False, arrays=True):
@@ -153,7 +158,8 @@ def drawn(gs, k, max_level, level_cells, level_span, leaf, sigmas=False, arrays=
     cvalues = getattr(gs, second, None) if m else None
     cvalues = np.zeros(0) if cvalues is None else np.asarray(cvalues)[:m]
     if arrays:
-        cnt = _counts(start, origins, offsets, sig_in, amps)
+        cnt = np.zeros(start.shape[0] - 1, np.int64)
+        parallel_for(_counts, cnt.shape[0], start, origins, offsets, sig_in, amps, cnt)
         first = np.zeros(cnt.shape[0] + 1, np.int64)
         np.cumsum(cnt, out=first[1:])
     else:
@@ -163,9 +169,10 @@ def drawn(gs, k, max_level, level_cells, level_span, leaf, sigmas=False, arrays=
                amp=np.empty(n), lev=np.empty(n, np.int64), clo=np.empty((n, 3), np.int64),
                chi=np.empty((n, 3), np.int64), sig=np.empty((n if sigmas else 0, 3)))
     gbox = np.empty((start.shape[0] - 1, 4, 3))
-    _fill(start, first, origins, offsets, sig_in, amps, values, cvalues, float(k), int(max_level),
-          int(level_cells), int(level_span), np.int64(leaf), out["mu"], out["inv"], out["sig"],
-          out["val"], out["cval"], out["amp"], out["lev"], out["clo"], out["chi"], gbox)
+    parallel_for(_fill, gbox.shape[0], start, first, origins, offsets, sig_in, amps, values, cvalues,
+                 float(k), np.int64(max_level), np.int64(level_cells), np.int64(level_span),
+                 np.int64(leaf), out["mu"], out["inv"], out["sig"], out["val"], out["cval"], out["amp"],
+                 out["lev"], out["clo"], out["chi"], gbox)
     lo = gbox[:, 0].min(0, initial=np.inf)
     out["bounds"] = None if not np.isfinite(lo).all() else (
         (lo, gbox[:, 1].max(0)), (gbox[:, 2].min(0), gbox[:, 3].max(0)))
