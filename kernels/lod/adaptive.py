@@ -27,7 +27,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..jit import parallel_njit, prange
+from ..jit import njit, parallel_for
 from . import weights as W
 from .fit import fit_weights
 from .gaussian_set import GaussianSet
@@ -40,11 +40,16 @@ SPLIT_GAIN = 1.0  # assumed share of a node's SSE that splitting it removes: spl
 MARGIN = 0.98  # fit to 0.98 x the tolerance: the amplitude quantization (0.27 %) must not tip it
 
 
-@parallel_njit(cache=True)
 def node_boxes(kept, values, order, nleaf, nxyz, ne, c2, ext, nvox, val, nchild):
     """Per node: bounding box of its kept voxels (c2 = lo + hi, ext = hi - lo + 1, local to the
     leaf), their count and mean value, and how many of its octants hold any (0 for e = 1)."""
-    for j in prange(nleaf.shape[0]):
+    parallel_for(_box_rows, nleaf.shape[0], kept, values, order, nleaf, nxyz, ne, c2, ext, nvox,
+                 val, nchild)
+
+
+@njit(cache=True, nogil=True)
+def _box_rows(lo, hi, kept, values, order, nleaf, nxyz, ne, c2, ext, nvox, val, nchild):
+    for j in range(lo, hi):
         i = nleaf[j]
         x0, y0, z0, e = nxyz[j, 0], nxyz[j, 1], nxyz[j, 2], ne[j]
         h = e // 2
@@ -76,13 +81,18 @@ def node_boxes(kept, values, order, nleaf, nxyz, ne, c2, ext, nvox, val, nchild)
         nchild[j] = k
 
 
-@parallel_njit(cache=True)
 def node_errors(nleaf, nxyz, ne, leaf_cell, cres):
     """Per node: SSE and max |residual| over its cell (cres is 0 at inactive voxels)."""
     m = nleaf.shape[0]
     sse = np.zeros(m)
     mx = np.zeros(m)
-    for j in prange(m):
+    parallel_for(_error_rows, m, nleaf, nxyz, ne, leaf_cell, cres, sse, mx)
+    return sse, mx
+
+
+@njit(cache=True, nogil=True)
+def _error_rows(lo, hi, nleaf, nxyz, ne, leaf_cell, cres, sse, mx):
+    for j in range(lo, hi):
         c = leaf_cell[nleaf[j]]
         x0, y0, z0, e = nxyz[j, 0], nxyz[j, 1], nxyz[j, 2], ne[j]
         s = 0.0
@@ -94,7 +104,6 @@ def node_errors(nleaf, nxyz, ne, leaf_cell, cres):
                     s += r * r
                     a = max(a, abs(r))
         sse[j], mx[j] = s, a
-    return sse, mx
 
 
 def _boxes(kept, values, order, nodes):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
@@ -110,15 +110,22 @@ def _c2(off):
     return np.int64(h) if h * 0.5 == o else np.int64(0), h * 0.5 == o
 
 
-@parallel_njit(cache=True)
 def leaf_ranges(offsets, codes, vox, ml):
     """Over the first ml Gaussians: (min, max) of c2 = 2 x offset, whether every centre is on
     the half-voxel lattice, (min, max) of the stored size codes (a sphere stores one), spheres,
     Gaussians whose voxels differ from the product of their codes, and the largest such count
-    (-1: none)."""
-    big, small = np.iinfo(np.int64).max, np.iinfo(np.int64).min
+    (-1: none). Per block of Gaussians on threads, blocks reduced here: exact in any order."""
     r = np.zeros((_BLOCKS, 8), np.int64)
-    for b in prange(_BLOCKS):
+    parallel_for(_range_blocks, _BLOCKS, offsets, codes, vox, np.int64(ml), r)
+    return (r[:, 0].min(), r[:, 1].max(), r[:, 2].sum() == 0, r[:, 3].min(), r[:, 4].max(),
+            r[:, 5].sum(), r[:, 6].sum(), r[:, 7].max())
+
+
+@njit(cache=True, nogil=True)
+def _range_blocks(b0, b1, offsets, codes, vox, ml, r):
+    """leaf_ranges' figures of blocks b0..b1-1 (of _BLOCKS) into rows of r."""
+    big, small = np.iinfo(np.int64).max, np.iinfo(np.int64).min
+    for b in range(b0, b1):
         lo, hi, slo, shi, bad, nsph, nexp, vmax = big, small, big, small, 0, 0, 0, -1
         for j in range(b * ml // _BLOCKS, (b + 1) * ml // _BLOCKS):
             for a in range(3):
@@ -137,8 +144,6 @@ def leaf_ranges(offsets, codes, vox, ml):
                 vmax = max(vmax, v)
         r[b, 0], r[b, 1], r[b, 2], r[b, 3] = lo, hi, bad, slo
         r[b, 4], r[b, 5], r[b, 6], r[b, 7] = shi, nsph, nexp, vmax
-    return (r[:, 0].min(), r[:, 1].max(), r[:, 2].sum() == 0, r[:, 3].min(), r[:, 4].max(),
-            r[:, 5].sum(), r[:, 6].sum(), r[:, 7].max())
 
 
 @njit(cache=True)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 
 DEFAULT_BAND_WIDTH = 0.5 * np.sqrt(3.0)
 # Where the surface passes within 1 - band_width of a layer of voxel centres and its normal is
@@ -30,12 +30,16 @@ def in_band(v, thr):
     return abs(v) <= thr
 
 
-@parallel_njit(cache=True)
 def band_masks(masks, values, thr):
-    """uint64 (N, 8): active voxels with |value| <= thr."""
-    n = masks.shape[0]
+    """uint64 (N, 8): active voxels with |value| <= thr (a float32), leaves on threads."""
     out = np.zeros_like(masks)
-    for i in prange(n):
+    parallel_for(_band_rows, masks.shape[0], masks, values, thr, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _band_rows(lo, hi, masks, values, thr, out):
+    for i in range(lo, hi):
         for w in range(8):
             m = masks[i, w]
             if m == 0:
@@ -46,7 +50,6 @@ def band_masks(masks, values, thr):
                     if in_band(values[i, w * 64 + b], thr):
                         r |= np.uint64(1) << np.uint64(b)
             out[i, w] = r
-    return out
 
 
 def surface_level(index_to_world) -> float:

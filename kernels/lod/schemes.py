@@ -17,12 +17,12 @@ Each Gaussian is described as a box of voxels in its leaf's local coordinates:
 """
 from __future__ import annotations
 
-import types
+import functools
 
 import numpy as np
 from numba.cpython.unsafe.numbers import trailing_zeros  # LLVM cttz: no public numba API
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 from .levelset import in_band
 from .weights import gaussian_shape, put_centre, put_shape
 
@@ -249,8 +249,7 @@ FULL = np.uint64(0xFFFFFFFFFFFFFFFF)
 FLT_MAX = np.float32(3.4028235e38)
 
 
-@parallel_njit(cache=True)
-def scan_leaves(masks, values, order, band, thr, scheme):
+def scan_leaves(masks, values, order, band, thr, scheme, threads=None):
     """The one full read of the active values. Leaf i of the canonical order is order[i]. Returns
     lo, hi: float64 per leaf (file order): min / max of its active values (NaN ignored, +-inf when
       none), what value_range reduces;
@@ -263,7 +262,14 @@ def scan_leaves(masks, values, order, band, thr, scheme):
     bad = np.zeros(n, np.bool_)
     kept = np.empty((n, 8), np.uint64)
     counts = np.zeros(n, np.int64)
-    for i in prange(n):
+    parallel_for(_scan_rows, n, masks, values, order, band, thr, np.int64(scheme), lo, hi,
+                 bad, kept, counts, threads=threads)
+    return lo, hi, bad, kept, counts
+
+
+@njit(cache=True, nogil=True)
+def _scan_rows(i0, i1, masks, values, order, band, thr, scheme, lo, hi, bad, kept, counts):
+    for i in range(i0, i1):
         li = order[i]
         a = np.float32(np.inf)
         c = np.float32(-np.inf)
@@ -282,25 +288,28 @@ def scan_leaves(masks, values, order, band, thr, scheme):
         lo[li], hi[li], bad[i] = a, c, nf
         if scheme != VARIANCE:
             counts[i] = _fast_count(kept[i], scheme)
-    return lo, hi, bad, kept, counts
 
 
-@parallel_njit(cache=True)
-def count_leaves(kept, values, order, scheme, thr_sp, thr_v2):
+def count_leaves(kept, values, order, scheme, thr_sp, thr_v2, threads=None):
     """Gaussians per leaf of the variance scheme (its splits depend on the values)."""
     n = order.shape[0]
     counts = np.zeros(n, np.int64)
-    d8 = np.zeros((1, 3), np.int16)
-    d1 = np.zeros(1, np.int32)
-    df = np.zeros(1, np.float32)
-    du = np.zeros(1, np.uint8)
-    for i in prange(n):
+    # dummy outputs: counting writes nothing
+    d8, d1 = np.zeros((1, 3), np.int16), np.zeros(1, np.int32)
+    df, du = np.zeros(1, np.float32), np.zeros(1, np.uint8)
+    parallel_for(_count_rows, n, kept, values, order, np.int64(scheme), thr_sp,
+                 thr_v2, d8, d1, df, du, counts, threads=threads)
+    return counts
+
+
+@njit(cache=True, nogil=True)
+def _count_rows(lo, hi, kept, values, order, scheme, thr_sp, thr_v2, d8, d1, df, du, counts):
+    for i in range(lo, hi):
         bits = np.empty(512, np.bool_)
         nact = _unpack(kept[i], bits)
         stack = np.empty((64, 6), np.int64)
         counts[i] = _leaf_emit(scheme, bits, nact, values[order[i]], False, np.int64(0), d8, d8, d1, df, du,
                                thr_sp, thr_v2, stack)
-    return counts
 
 
 @njit(cache=True)
@@ -337,12 +346,19 @@ def _high_leaf(mrow, vals, k, paper, scale, out):
 CHUNK = 32  # leaves per parallel task: one set of scratch arrays per task, not per leaf
 
 
-@parallel_njit(cache=True)
-def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, paper, scale, out):
+def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, paper, scale, out,
+                   threads=None):
     """Every leaf's Gaussians into out (see weights.new_gaussians) at rows starts[i]..., each
     with the mean of its voxels as its value (a level set's: weights.level_set_distances)."""
     n = order.shape[0]
-    for t in prange((n + CHUNK - 1) // CHUNK):
+    parallel_for(_fill_tasks, (n + CHUNK - 1) // CHUNK, kept, values, order, starts, np.int64(scheme),
+                 thr_sp, thr_v2, paper, scale, out, threads=threads)
+
+
+@njit(cache=True, nogil=True)
+def _fill_tasks(lo, hi, kept, values, order, starts, scheme, thr_sp, thr_v2, paper, scale, out):
+    n = order.shape[0]
+    for t in range(lo, hi):
         bits = np.empty(512, np.bool_)
         stack = np.empty((64, 6), np.int64)
         c2 = np.empty((512, 3), np.int16)
@@ -366,11 +382,17 @@ def fill_gaussians(kept, values, order, starts, scheme, thr_sp, thr_v2, paper, s
                 put_shape(out, starts[i] + q, starts[i] + q + 1, shape, nvox[q])
 
 
-@parallel_njit(cache=True)
-def fill_boxes(kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val, full_block):
+def fill_boxes(kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val, full_block,
+               threads=None):
     """Every leaf's boxes (for the merge pass, which works on boxes)."""
-    n = order.shape[0]
-    for i in prange(n):
+    parallel_for(_box_rows, order.shape[0], kept, values, order, starts, np.int64(scheme),
+                 thr_sp, thr_v2, c2, ext, nvox, val, full_block, threads=threads)
+
+
+@njit(cache=True, nogil=True)
+def _box_rows(lo, hi, kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvox, val,
+              full_block):
+    for i in range(lo, hi):
         bits = np.empty(512, np.bool_)
         nact = _unpack(kept[i], bits)
         stack = np.empty((64, 6), np.int64)
@@ -378,25 +400,14 @@ def fill_boxes(kept, values, order, starts, scheme, thr_sp, thr_v2, c2, ext, nvo
                    thr_sp, thr_v2, stack)
 
 
-def _serial_twin(f):
-    """The same kernel compiled without threads (prange runs as range). It gets its own qualname:
-    numba's cache keys on the function's name and bytecode, not on `parallel`, so a plain
-    njit(f.py_func) would share (and load) the parallel twin's cache entry, or give it its own."""
-    py = f.py_func
-    g = types.FunctionType(py.__code__, py.__globals__, py.__name__ + "_serial", py.__defaults__,
-                           py.__closure__)
-    g.__qualname__ = py.__qualname__ + "_serial"
-    g.__doc__ = py.__doc__
-    return njit(cache=True)(g)
-
-
-# serial twins: small grids skip the parallel region, whose start-up costs tens of ms when the
-# other core is busy. Same code, same results.
+# Small grids run on the calling thread alone (threads=1): helper threads would cost more than
+# they save, and on a busy machine the last chunk can wait a time slice for one. Same kernels,
+# same results.
 SERIAL_BELOW = 4096  # leaves
 _PAR = dict(scan=scan_leaves, count=count_leaves, fill=fill_gaussians, boxes=fill_boxes)
-_SER = {k: _serial_twin(f) for k, f in _PAR.items()}
+_SER = {k: functools.partial(f, threads=1) for k, f in _PAR.items()}
 
 
 def kernels(n_leaves):
-    """The parallel kernels, or their serial twins for small grids."""
+    """The scheme kernels, on the calling thread alone for small grids."""
     return _SER if n_leaves < SERIAL_BELOW else _PAR

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 from .levelset import band_masks
 
 _OFF = 1 << 20  # leaf coordinates are offset into 21 bits per axis for one int64 key
@@ -73,11 +73,17 @@ def _value_at(x, y, z, skeys, order, values, t_lo, t_size, t_val, bg):
     return bg
 
 
-@parallel_njit(cache=True)
 def _box_means(lo, ext, kkeys, korder, kmasks, skeys, order, values, t_lo, t_size, t_val, bg, out):
     """out[g] = mean of the second grid over the kept voxels of the first inside box g (voxel
-    order x, y, z; NaN when the box holds none)."""
-    for g in prange(lo.shape[0]):
+    order x, y, z; NaN when the box holds none), boxes on threads."""
+    parallel_for(_box_mean_rows, lo.shape[0], lo, ext, kkeys, korder, kmasks, skeys, order, values,
+                 t_lo, t_size, t_val, bg, out)
+
+
+@njit(cache=True, nogil=True)
+def _box_mean_rows(g0, g1, lo, ext, kkeys, korder, kmasks, skeys, order, values, t_lo, t_size,
+                   t_val, bg, out):
+    for g in range(g0, g1):
         s = 0.0
         n = 0
         for x in range(lo[g, 0], lo[g, 0] + ext[g, 0]):
@@ -93,10 +99,16 @@ def _box_means(lo, ext, kkeys, korder, kmasks, skeys, order, values, t_lo, t_siz
         out[g] = np.float32(s / n) if n else np.float32(np.nan)
 
 
-@parallel_njit(cache=True)
 def _fill_bricks(cell_xyz, skeys, order, values, t_lo, t_size, t_val, bg, out):
-    """out[c] = the 10^3 voxels 8 cell - 1 .. 8 cell + 8 of the second grid (accel.BRICK)."""
-    for c in prange(cell_xyz.shape[0]):
+    """out[c] = the 10^3 voxels 8 cell - 1 .. 8 cell + 8 of the second grid (accel.BRICK), cells
+    on threads."""
+    parallel_for(_brick_rows, cell_xyz.shape[0], cell_xyz, skeys, order, values, t_lo, t_size,
+                 t_val, bg, out)
+
+
+@njit(cache=True, nogil=True)
+def _brick_rows(lo, hi, cell_xyz, skeys, order, values, t_lo, t_size, t_val, bg, out):
+    for c in range(lo, hi):
         for i in range(10):
             for j in range(10):
                 for k in range(10):

@@ -20,7 +20,7 @@ import collections
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 from ..vdb.griddata import GridData
 from .error_pairs import chunk_pairs, distinct_sigmas, group_boxes
 from .mixture import _NO_LATTICE, DEFAULT_K, _eval_cells, axis_tables, mixture_chunks
@@ -65,9 +65,14 @@ def _weight_below(sigmas, vox, spacings):
     return below, total
 
 
-@parallel_njit(cache=True)
 def _fill_keys(lo, hi, start, keys):
-    for g in prange(lo.shape[0]):
+    """keys[start[g]:start[g + 1]] = the keys of box g's cells (x, then y, then z), boxes on threads."""
+    parallel_for(_box_rows, lo.shape[0], lo, hi, start, keys)
+
+
+@njit(cache=True, nogil=True)
+def _box_rows(g0, g1, lo, hi, start, keys):
+    for g in range(g0, g1):
         n = start[g]
         for x in range(lo[g, 0], hi[g, 0] + 1):
             for y in range(lo[g, 1], hi[g, 1] + 1):

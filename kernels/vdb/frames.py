@@ -20,7 +20,7 @@ import sys
 
 import numpy as np
 
-from ..jit import HAVE_NUMBA, njit, parallel_njit, prange
+from ..jit import HAVE_NUMBA, njit, parallel_for
 
 if HAVE_NUMBA:
     from llvmlite import ir
@@ -235,17 +235,21 @@ def _inflate_one(j, fn, buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start
     status[i] = 0 if (r == 0 and dlen[i] == nbytes[i]) else 1
 
 
-# Separate serial and parallel drivers: see leaves._decode_serial for why.
+# Serial and threaded drivers: see leaves._decode_serial.
 @njit(cache=True, nogil=True)
 def _inflate_serial(n, *args):
     for j in range(n):
         _inflate_one(j, *args)
 
 
-@parallel_njit(cache=True, nogil=True)
 def _inflate_parallel(n, *args):
-    for j in prange(n):
-        _inflate_one(np.int64(j), *args)
+    parallel_for(_inflate_rows, n, *args)
+
+
+@njit(cache=True, nogil=True)
+def _inflate_rows(lo, hi, *args):
+    for j in range(lo, hi):
+        _inflate_one(j, *args)
 
 
 def _find_uncompress():

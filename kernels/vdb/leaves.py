@@ -19,10 +19,10 @@ try:
 except ImportError:  # pragma: no cover
     blosc_ptr = None
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 
 # Below this many leaves (or zip chunks) the loops run serially: starting threads would cost more
-# than it saves, and on a busy machine a parallel region can wait a whole time slice for a thread.
+# than it saves, and on a busy machine the last chunk can wait a whole time slice for its thread.
 PARALLEL_LEAVES = 512
 
 _POPC8 = np.array([bin(i).count("1") for i in range(256)], np.int64)
@@ -376,26 +376,29 @@ def _decode_task(c, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbyt
 _TASK = 32  # leaves per task (one set of scratch buffers each)
 
 
-# Two drivers, not one function compiled twice: numba's disk cache keys entries by the Python
-# function, so a serial and a parallel build of the same function overwrite each other and the
-# "serial" one could come back parallel (thread start-up and stalls on a busy machine).
+# Two drivers: small grids decode in one call on the calling thread, big ones in chunks of tasks
+# on threads (parallel_for).
 @njit(cache=True, nogil=True)
 def _decode_serial(ntasks, *args):
     for c in range(ntasks):
         _decode_task(c, *args)
 
 
-@parallel_njit(cache=True, nogil=True)
 def _decode_parallel(ntasks, *args):
-    for c in prange(ntasks):  # leaves are independent: any thread count gives the same result
-        _decode_task(np.int64(c), *args)
+    parallel_for(_decode_rows, ntasks, *args)
+
+
+@njit(cache=True, nogil=True)
+def _decode_rows(lo, hi, *args):
+    for c in range(lo, hi):  # leaves are independent: any thread count gives the same result
+        _decode_task(c, *args)
 
 
 _HALF_BITS = HALF_LUT.view(np.uint32)
 
 
 BLOCK_LEAVES = 1 << 15  # leaves decoded between releases of their file pages (64 MB of values;
-# each block is one parallel region, which on a busy machine may wait a time slice for a thread)
+# each block is one parallel_for, whose last chunk on a busy machine may wait a time slice)
 
 
 def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
