@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 from .error_pairs import _key
 
 MAX_CLASSES = 4  # lattice classes at most (High has 2, Medium 3)
 MIN_CLASS = 64  # Gaussians a class needs (fewer: cheaper on the pair lists)
 _KEYS = 16  # distinct (sigma, edge) keys counted per block of groups
-_BLOCKS = 64  # blocks of leaf groups counted in parallel
+_BLOCKS = 64  # blocks of leaf groups counted on threads
 
 
 @njit(cache=True, inline="always")
@@ -49,13 +49,11 @@ def _class_of(j, offsets, sigmas, csig, ce):
     return -1
 
 
-@parallel_njit(cache=True)
-def _class_counts(gstart, nl, offsets, sigmas):
-    """Per block of leaf groups: its first _KEYS distinct (sigma, edge) keys and their counts."""
-    ks = np.zeros((_BLOCKS, _KEYS, 3), np.float32)
-    ke = np.zeros((_BLOCKS, _KEYS, 3), np.int64)
-    cnt = np.zeros((_BLOCKS, _KEYS), np.int64)
-    for b in prange(_BLOCKS):
+@njit(cache=True, nogil=True)
+def _class_count_rows(lo, hi, gstart, nl, offsets, sigmas, ks, ke, cnt):
+    """Per block b of leaf groups in lo..hi-1: its first _KEYS distinct (sigma, edge) keys and
+    their counts."""
+    for b in range(lo, hi):
         n = 0
         last = -1
         for j in range(gstart[b * nl // _BLOCKS], gstart[(b + 1) * nl // _BLOCKS]):
@@ -79,6 +77,14 @@ def _class_counts(gstart, nl, offsets, sigmas):
                 n += 1
             cnt[b, hit] += 1
             last = hit
+
+
+def _class_counts(gstart, nl, offsets, sigmas):
+    """Per block of leaf groups: its first _KEYS distinct (sigma, edge) keys and their counts."""
+    ks = np.zeros((_BLOCKS, _KEYS, 3), np.float32)
+    ke = np.zeros((_BLOCKS, _KEYS, 3), np.int64)
+    cnt = np.zeros((_BLOCKS, _KEYS), np.int64)
+    parallel_for(_class_count_rows, _BLOCKS, gstart, np.int64(nl), offsets, sigmas, ks, ke, cnt)
     return ks, ke, cnt
 
 
@@ -222,15 +228,9 @@ def class_tables(csig, ce, k):
             np.array(xyl, np.int64), np.array(xye, np.float64), cost, nwm, nlm)
 
 
-@parallel_njit(cache=True)
-def classify(gstart, nl, offsets, sigmas, csig, ce):
-    """Per Gaussian its lattice class (int8, -1: none; tiles none); per group the Gaussians of
-    no class and the classes it holds (bit q for class q: see node_slots)."""
-    ng = gstart.shape[0] - 1
-    cls = np.full(gstart[ng], -1, np.int8)
-    rest = np.zeros(ng, np.int64)
-    held = np.zeros(ng, np.int64)
-    for gi in prange(ng):
+@njit(cache=True, nogil=True)
+def _classify_rows(lo, hi, gstart, nl, offsets, sigmas, csig, ce, cls, rest, held):
+    for gi in range(lo, hi):
         for j in range(gstart[gi], gstart[gi + 1]):
             q = _class_of(j, offsets, sigmas, csig, ce) if gi < nl else -1
             cls[j] = q
@@ -238,6 +238,17 @@ def classify(gstart, nl, offsets, sigmas, csig, ce):
                 rest[gi] += 1
             else:
                 held[gi] |= 1 << q
+
+
+def classify(gstart, nl, offsets, sigmas, csig, ce):
+    """Per Gaussian its lattice class (int8, -1: none; tiles none); per group the Gaussians of
+    no class and the classes it holds (bit q for class q: see node_slots)."""
+    ng = gstart.shape[0] - 1
+    cls = np.full(gstart[ng], -1, np.int8)
+    rest = np.zeros(ng, np.int64)
+    held = np.zeros(ng, np.int64)
+    parallel_for(_classify_rows, ng, gstart, np.int64(nl), offsets, sigmas, csig, ce, cls, rest,
+                 held)
     return cls, rest, held
 
 
@@ -256,36 +267,10 @@ def node_slots(grp, held, nper):
     return slot, size
 
 
-@parallel_njit(cache=True)
-def gather_split(grp, gstart, origins, offsets, sigmas, values, amps, u, cls, rest, ce, nper,
-                 slot, nodes):
-    """Centres and sigmas (float64, as GaussianSet.centers() and mixture.setup make them) and
-    weights of the Gaussians of groups grp of no lattice class (classify's cls, rest), in order;
-    with u (the set's distinct sigmas) also their doubled centres (int64) and sigma ids for the
-    axis tables, and whether every such centre is on the half-voxel lattice. The class nodes of
-    grp's groups go to nodes (node_slots' slot: float64 weights value x amplitude, 0 where a
-    node holds no Gaussian); returns also keys, each group's cell key (grp's leaf groups come
-    first, sorted)."""
-    ng = grp.shape[0]
-    keys = np.zeros(ng, np.int64)
-    first = np.zeros(ng + 1, np.int64)
-    for i in range(ng):
-        first[i + 1] = first[i] + rest[grp[i]]
-    nodes[:] = 0.0
-    shift = np.zeros(ce.shape, np.int64)  # node j = (c2 + 1 - e) / 2e, e a power of 2
-    for q in range(ce.shape[0]):
-        for a in range(3):
-            while (np.int64(1) << shift[q, a]) < ce[q, a]:
-                shift[q, a] += 1
-            shift[q, a] += 1
-    m = first[ng]
-    cent = np.empty((m, 3))
-    sig = np.empty((m, 3))
-    w = np.empty(m)
-    c2 = np.zeros((m, 3), np.int64)
-    sid = np.zeros((m, 3), np.int32)
-    off = np.zeros(ng, np.bool_)
-    for i in prange(ng):
+@njit(cache=True, nogil=True)
+def _gather_rows(lo, hi, grp, gstart, origins, offsets, sigmas, values, amps, u, cls, ce, nper,
+                 slot, nodes, first, shift, keys, cent, sig, w, c2, sid, off):
+    for i in range(lo, hi):
         gi = grp[i]
         keys[i] = _key(np.int64(origins[gi, 0]) >> 3, np.int64(origins[gi, 1]) >> 3,
                        np.int64(origins[gi, 2]) >> 3)
@@ -316,4 +301,35 @@ def gather_split(grp, gstart, origins, offsets, sigmas, values, amps, u, cls, re
                     t += 1
                 sid[o, a] = t
             o += 1
+
+
+def gather_split(grp, gstart, origins, offsets, sigmas, values, amps, u, cls, rest, ce, nper,
+                 slot, nodes):
+    """Centres and sigmas (float64, as GaussianSet.centers() and mixture.setup make them) and
+    weights of the Gaussians of groups grp of no lattice class (classify's cls, rest), in order;
+    with u (the set's distinct sigmas) also their doubled centres (int64) and sigma ids for the
+    axis tables, and whether every such centre is on the half-voxel lattice. The class nodes of
+    grp's groups go to nodes (node_slots' slot: float64 weights value x amplitude, 0 where a
+    node holds no Gaussian); returns also keys, each group's cell key (grp's leaf groups come
+    first, sorted)."""
+    ng = grp.shape[0]
+    keys = np.zeros(ng, np.int64)
+    first = np.zeros(ng + 1, np.int64)  # where each group's Gaussians of no class start
+    np.cumsum(rest[grp], out=first[1:])
+    nodes[:] = 0.0
+    shift = np.zeros(ce.shape, np.int64)  # node j = (c2 + 1 - e) / 2e, e a power of 2
+    for q in range(ce.shape[0]):
+        for a in range(3):
+            while (1 << int(shift[q, a])) < ce[q, a]:
+                shift[q, a] += 1
+            shift[q, a] += 1
+    m = first[ng]
+    cent = np.empty((m, 3))
+    sig = np.empty((m, 3))
+    w = np.empty(m)
+    c2 = np.zeros((m, 3), np.int64)
+    sid = np.zeros((m, 3), np.int32)
+    off = np.zeros(ng, np.bool_)
+    parallel_for(_gather_rows, ng, grp, gstart, origins, offsets, sigmas, values, amps, u, cls, ce,
+                 nper, slot, nodes, first, shift, keys, cent, sig, w, c2, sid, off)
     return cent, sig, w, c2, sid, not off.any(), keys

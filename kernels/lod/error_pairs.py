@@ -1,12 +1,12 @@
 """The field error's pair lists (mixture.py): which leaf cells each Gaussian's k-sigma box meets
-(sorted cell keys, or a chunk's dense cell box), counted then filled in parallel, grouped by cell
+(sorted cell keys, or a chunk's dense cell box), counted then filled on threads, grouped by cell
 with a counting sort; and the groups' reach in cells (the chunks' Gaussians are gathered by
 error_lattice.gather_split)."""
 from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 
 _OFF = np.int64(1 << 20)
 LUT_CELLS = 1 << 22  # a chunk's dense cell box (int32) up to 16 MB
@@ -81,39 +81,70 @@ def _lut_cells_of(g, cent, sig, k, lut, lmin, out, pos, write):
     return n
 
 
-@parallel_njit(cache=True)
+@njit(cache=True, nogil=True)
+def _lut_count_rows(lo, hi, cent, sig, k, lut, lmin, start):
+    """start[g + 1] = Gaussian g's cells in the dense box lut, for g in lo..hi-1."""
+    dummy = np.zeros(1, np.int32)
+    for g in range(lo, hi):
+        start[g + 1] = _lut_cells_of(g, cent, sig, k, lut, lmin, dummy, 0, False)
+
+
+@njit(cache=True, nogil=True)
+def _lut_fill_rows(lo, hi, cent, sig, k, lut, lmin, start, pc):
+    for g in range(lo, hi):
+        _lut_cells_of(g, cent, sig, k, lut, lmin, pc, start[g], True)
+
+
 def _lut_pairs(cent, sig, k, lut, lmin):
     """The pairs of a chunk of cells (lut: its cells' box): per Gaussian start, cell of each pair."""
     m = cent.shape[0]
     start = np.zeros(m + 1, np.int64)
-    dummy = np.zeros(1, np.int32)
-    for g in prange(m):
-        start[g + 1] = _lut_cells_of(g, cent, sig, k, lut, lmin, dummy, 0, False)
-    for g in range(m):
-        start[g + 1] += start[g]
+    parallel_for(_lut_count_rows, m, cent, sig, k, lut, lmin, start)
+    np.cumsum(start, out=start)
     pc = np.empty(start[m], np.int32)
-    for g in prange(m):
-        _lut_cells_of(g, cent, sig, k, lut, lmin, pc, start[g], True)
+    parallel_for(_lut_fill_rows, m, cent, sig, k, lut, lmin, start, pc)
     return start, pc
 
 
-@parallel_njit(cache=True)
-def _count_pairs(cent, sig, k, keys, corg):
-    m = cent.shape[0]
-    cnt = np.zeros(m, np.int64)
+@njit(cache=True, nogil=True)
+def _count_rows(lo, hi, cent, sig, k, keys, corg, cnt):
     dummy = np.zeros(1, np.int64)
-    for g in prange(m):
+    for g in range(lo, hi):
         cnt[g] = _cells_of(g, cent, sig, k, keys, corg, dummy, 0, False)
+
+
+def _count_pairs(cent, sig, k, keys, corg):
+    """Per Gaussian, the cells (of keys / corg) its k-sigma box meets."""
+    cnt = np.zeros(cent.shape[0], np.int64)
+    parallel_for(_count_rows, cent.shape[0], cent, sig, k, keys, corg, cnt)
     return cnt
 
 
-@parallel_njit(cache=True)
-def _fill_pairs(cent, sig, k, keys, corg, start, out):
-    for g in prange(cent.shape[0]):
+@njit(cache=True, nogil=True)
+def _fill_rows(lo, hi, cent, sig, k, keys, corg, start, out):
+    for g in range(lo, hi):
         _cells_of(g, cent, sig, k, keys, corg, out, start[g], True)
 
 
-@parallel_njit(cache=True)
+def _fill_pairs(cent, sig, k, keys, corg, start, out):
+    """Gaussian g's cells into out[start[g]:], in key order."""
+    parallel_for(_fill_rows, cent.shape[0], cent, sig, k, keys, corg, start, out)
+
+
+@njit(cache=True, nogil=True)
+def _group_box_rows(lo, hi, origins, gstart, offsets, sigmas, o, s, k, glo, ghi):
+    for i in range(lo, hi):
+        for a in range(3):
+            glo[i, a] = np.iinfo(np.int64).max
+            ghi[i, a] = np.iinfo(np.int64).min
+        for g in range(gstart[i], gstart[i + 1]):
+            for a in range(3):
+                c = (np.float64(origins[i, a]) + np.float64(offsets[g, a]) - o) / s
+                r = k * (np.float64(sigmas[g, a]) / s)
+                glo[i, a] = min(glo[i, a], np.int64(np.ceil(c - r)) >> 3)
+                ghi[i, a] = max(ghi[i, a], np.int64(np.floor(c + r)) >> 3)
+
+
 def group_boxes(origins, gstart, offsets, sigmas, o, s, k):
     """Per group, the cells (index >> 3) its Gaussians' k-sigma boxes span, as _cells_of finds
     them (lo, hi: int64 (groups, 3); lo > hi for an empty group), on a lattice of spacing s whose
@@ -121,16 +152,8 @@ def group_boxes(origins, gstart, offsets, sigmas, o, s, k):
     n = gstart.shape[0] - 1
     lo = np.empty((n, 3), np.int64)
     hi = np.empty((n, 3), np.int64)
-    for i in prange(n):
-        for a in range(3):
-            lo[i, a] = np.iinfo(np.int64).max
-            hi[i, a] = np.iinfo(np.int64).min
-        for g in range(gstart[i], gstart[i + 1]):
-            for a in range(3):
-                c = (np.float64(origins[i, a]) + np.float64(offsets[g, a]) - o) / s
-                r = k * (np.float64(sigmas[g, a]) / s)
-                lo[i, a] = min(lo[i, a], np.int64(np.ceil(c - r)) >> 3)
-                hi[i, a] = max(hi[i, a], np.int64(np.floor(c + r)) >> 3)
+    parallel_for(_group_box_rows, n, origins, gstart, offsets, sigmas, np.float64(o),
+                 np.float64(s), np.float64(k), lo, hi)
     return lo, hi
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import parallel_njit, prange
+from ..jit import njit, parallel_for
 from .error_pairs import distinct_sigmas
 from .mixture import (
     CELLS_PER_TASK,
@@ -32,24 +32,12 @@ OMEGA = 1.6  # over-relaxation (< 2)
 NONE, S1, SHARE = 0, 1, 2  # what a pass sums per pair beside A^T r (_pass)
 
 
-@parallel_njit(cache=True)
-def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, den, c2, sid, tq, te, hh, pnum, pden,
-          cres):
-    """Residual at every active voxel of every cell into cres (0 elsewhere); per pair
-    pnum = sum g r and pden: with den = S1 sum g s1, with den = SHARE the pair's share of the SSE,
-    sum |w g| r^2 / sum_k |w_k g_k| (each voxel's error split among the Gaussians that make its
-    field), with den = NONE nothing (the second mixture is not made). Returns the per-cell SSE
-    and max |r|. Each pair's axis terms are made once (from axis_tables' tables when hh >= 0) and
-    kept for their three uses: they were most of the cost."""
-    nc = corg.shape[0]
-    k2 = k * k
-    sse = np.zeros(nc)
-    mx = np.zeros(nc)
-    ones = np.ones(w.shape[0]) if den == S1 else np.abs(w)
-    most = 1
-    for c in range(nc):
-        most = max(most, cstart[c + 1] - cstart[c])
-    for t in prange((nc + CELLS_PER_TASK - 1) // CELLS_PER_TASK):
+@njit(cache=True, nogil=True)
+def _pass_rows(lo, hi, corg, cmask, cref, cstart, pg, cent, sig, w, k, den, c2, sid, tq, te, hh, pnum, pden,
+               cres, ones, most, sse, mx):
+    """_pass' tasks lo..hi-1: CELLS_PER_TASK cells each, one set of scratch arrays."""
+    nc, k2 = corg.shape[0], k * k
+    for t in range(lo, hi):
         acc = np.empty(512)
         one = np.empty(512)
         act = np.empty(512, np.bool_)
@@ -88,6 +76,24 @@ def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, den, c2, sid, tq, te, 
                 num, dsum = pair_voxels(qs[p - p0], es[p - p0], k2, True, True, vn, res, vd, one)
                 pnum[p] = num
                 pden[p] = dsum if den == S1 else dsum * abs(w[pg[p]])
+
+
+def _pass(corg, cmask, cref, cstart, pg, cent, sig, w, k, den, c2, sid, tq, te, hh, pnum, pden,
+          cres):
+    """Residual at every active voxel of every cell into cres (0 elsewhere); per pair
+    pnum = sum g r and pden: with den = S1 sum g s1, with den = SHARE the pair's share of the SSE,
+    sum |w g| r^2 / sum_k |w_k g_k| (each voxel's error split among the Gaussians that make its
+    field), with den = NONE nothing (the second mixture is not made). Returns the per-cell SSE
+    and max |r|. Each pair's axis terms are made once (from axis_tables' tables when hh >= 0) and
+    kept for their three uses: they were most of the cost."""
+    nc = corg.shape[0]
+    sse = np.zeros(nc)
+    mx = np.zeros(nc)
+    ones = np.ones(w.shape[0]) if den == S1 else np.abs(w)
+    most = max(1, int(np.diff(cstart).max())) if nc else 1  # the most pairs a cell has
+    parallel_for(_pass_rows, -(-nc // CELLS_PER_TASK), corg, cmask, cref, cstart, pg, cent, sig, w,
+                 np.float64(k), np.int64(den), c2, sid, tq, te, np.int64(hh), pnum, pden, cres, ones,
+                 np.int64(most), sse, mx)
     return sse, mx
 
 

@@ -5,7 +5,7 @@ s(x) = sum_i value_i amplitude_i exp(-1/2 sum_k ((x_k - c_ik)/sigma_ik)^2), each
 to its k-sigma ellipsoid (k = 4 by default: the cut-off is exp(-8) = 3.4e-4 of the peak; the renderer
 uses the same support). Evaluation uses the leaf structure: every Gaussian is listed (count-then-fill)
 in the cells (leaves, tiles) its support box meets, then each cell sums its list over its 8^3 voxels
-with separable exponentials, in parallel over cells. The set's common classes of equal-sigma
+with separable exponentials, on threads over cells. The set's common classes of equal-sigma
 Gaussians on a block lattice (High's 2^3 blocks and voxels) skip the lists: each cell sums them from
 the nodes of the 27 leaves around it (error_lattice.py), the same terms in another order (1e-11).
 Per-cell partial sums are reduced in cell order, so the numbers depend neither on the thread count
@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 from .error_lattice import class_tables, classify, gather_split, lattice_classes, node_slots
 from .error_lattice_sums import lattice_cell
 from .error_pairs import _OFF, _count_pairs, _fill_pairs, chunk_pairs, distinct_sigmas, group_boxes
@@ -197,7 +197,7 @@ def pair_voxels(q, e, k2, gather, both, u, wu, v, wv):
             ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7])))
 
 
-CELLS_PER_TASK = 16  # cells per parallel task: one set of scratch arrays per task
+CELLS_PER_TASK = 16  # cells per task (parallel_for's index): one set of scratch arrays per task
 
 
 @njit(cache=True, inline="always")
@@ -213,24 +213,13 @@ def _store(c, acc, vals, masks):
         masks[c, wd] = m
 
 
-@parallel_njit(cache=True)
-def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh, keys, nlg,
-                slot, nodes, nper, nw, wr, wnode, qa, ea, tz, ez, nlev, xys, xyt, xyl, xye, cost,
-                nwm, nlm, vals, masks):
-    """Per cell: squared residual, max |residual|, active voxels, and the occupancy's
-    intersection and union. hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te, hh).
-    With vals (float32 (cells, 512); else empty) the mixture itself too, and in masks (uint64
-    (cells, 8)) where it is nonzero (a splat lattice: kernels.lod.splat).
-    The lattice classes (keys ... nlm: error_lattice_sums.lattice_cell's) first, then the
-    cell's pair list."""
-    nc = corg.shape[0]
-    sse = np.zeros(nc)
-    mx = np.zeros(nc)
-    npts = np.zeros(nc)
-    inter = np.zeros(nc)
-    union = np.zeros(nc)
-    k2 = k * k
-    for t in prange((nc + CELLS_PER_TASK - 1) // CELLS_PER_TASK):
+@njit(cache=True, nogil=True)
+def _eval_rows(lo, hi, corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh, keys, nlg, slot,
+               nodes, nper, nw, wr, wnode, qa, ea, tz, ez, nlev, xys, xyt, xyl, xye, cost, nwm, nlm, vals,
+               masks, sse, mx, npts, inter, union):
+    """_eval_cells' tasks lo..hi-1: CELLS_PER_TASK cells each, one set of scratch arrays."""
+    nc, k2 = corg.shape[0], k * k
+    for t in range(lo, hi):
         acc = np.empty(512)
         res = np.empty(512)
         act = np.empty(512, np.bool_)
@@ -262,7 +251,22 @@ def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te,
                     if occ or ref:
                         un += 1.0
             inter[c], union[c] = it, un
-    return sse, mx, npts, inter, union
+
+
+def _eval_cells(corg, cmask, cref, cstart, pg, cent, sig, w, k, c2, sid, tq, te, hh, keys, nlg, slot, nodes,
+                nper, nw, wr, wnode, qa, ea, tz, ez, nlev, xys, xyt, xyl, xye, cost, nwm, nlm, vals, masks):
+    """Per cell: squared residual, max |residual|, active voxels, and the occupancy's
+    intersection and union. hh >= 0: the axis terms from axis_tables' (c2, sid, tq, te, hh).
+    With vals (float32 (cells, 512); else empty) the mixture itself too, and in masks (uint64
+    (cells, 8)) where it is nonzero (a splat lattice: kernels.lod.splat).
+    The lattice classes (keys ... nlm: error_lattice_sums.lattice_cell's) first, then the
+    cell's pair list."""
+    out = tuple(np.zeros(len(corg)) for _ in range(5))  # sse, mx, npts, inter, union
+    parallel_for(_eval_rows, -(-len(corg) // CELLS_PER_TASK), corg, cmask, cref, cstart, pg, cent, sig, w,
+                 np.float64(k), c2, sid, tq, te, np.int64(hh), keys, np.int64(nlg), slot, nodes, nper, nw, wr,
+                 wnode, qa, ea, tz, ez, nlev, xys, xyt, xyl, xye, cost, np.int64(nwm), np.int64(nlm), vals,
+                 masks, *out)
+    return out
 
 
 def _cells(grid, gset):

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import parallel_njit, prange
+from ..jit import njit, parallel_for
 from .mixture import DEFAULT_K, axis_terms, cell_mixture, cell_residual, pair_voxels, setup
 from .weights import amplitudes64, factors_from_codes, quantize_factors
 
@@ -29,12 +29,10 @@ FMAX = 8.0  # largest amplitude factor (an isolated voxel needs ~3.4 at sigma = 
 POWER = 4.0  # psi = g^POWER
 
 
-@parallel_njit(cache=True)
-def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum, pden):
-    nc = corg.shape[0]
+@njit(cache=True, nogil=True)
+def _residual_rows(lo, hi, corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum, pden, sse):
     k2 = k * k
-    sse = np.zeros(nc)
-    for c in prange(nc):
+    for c in range(lo, hi):
         acc = np.zeros(512)
         q = np.empty((3, 8))
         e = np.empty((3, 8))
@@ -49,6 +47,14 @@ def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum,
             # psi = g^power: the Gaussian narrowed to sigma / sqrt(power), cut at k2 / power
             axis_terms(c, pg[p], corg, cent, sig, power, k2 / power, q, e)
             pnum[p], pden[p] = pair_voxels(q, e, k2 / power, True, True, vn, res, vd, on)
+
+
+def _residual_pairs(corg, cmask, cref, cstart, pg, cent, sig, w, k, power, pnum, pden):
+    """Per cell the summed squared residual at its active voxels; per pair pnum = sum psi r and
+    pden = sum psi over its cell's active voxels (psi = g^power)."""
+    sse = np.zeros(corg.shape[0])
+    parallel_for(_residual_rows, corg.shape[0], corg, cmask, cref, cstart, pg, cent, sig, w,
+                 np.float64(k), np.float64(power), pnum, pden, sse)
     return sse
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit, parallel_njit, prange
+from ..jit import njit, parallel_for
 
 DEFAULT_SIGMA_FACTOR = 0.6
 TWO_PI_32 = (2.0 * np.pi) ** 1.5
@@ -55,21 +55,28 @@ def amplitudes(sigmas, voxels, weights, factors=None):
     return a.astype(np.float32)
 
 
-@parallel_njit(cache=True)
-def field_amplitudes_match(sigmas, voxels, amps, first, tvox):
-    """Whether amps are exactly the unrefined field amplitudes (amplitudes64 cast to float32,
-    the same operations) of sigmas and the voxel counts: voxels below row ``first``, the true
-    counts tvox (float64, GaussianSet.true_voxels) from there on."""
+_BLOCKS = 64  # blocks of rows field_amplitudes_match checks on threads
+
+
+@njit(cache=True, nogil=True)
+def _match_rows(lo, hi, sigmas, voxels, amps, first, tvox, bad):
+    """bad[b] for the blocks b in lo..hi-1: a row of block b whose amplitude differs."""
     n = amps.shape[0]
-    blocks = 64
-    bad = np.zeros(blocks, np.bool_)
-    for b in prange(blocks):
-        for j in range(b * n // blocks, (b + 1) * n // blocks):
+    for b in range(lo, hi):
+        for j in range(b * n // _BLOCKS, (b + 1) * n // _BLOCKS):
             v = np.float64(voxels[j]) if j < first else tvox[j - first]
             s = TWO_PI_32 * np.float64(sigmas[j, 0]) * np.float64(sigmas[j, 1]) * np.float64(sigmas[j, 2])
             if np.float32(v / s) != amps[j]:
                 bad[b] = True
                 break
+
+
+def field_amplitudes_match(sigmas, voxels, amps, first, tvox):
+    """Whether amps are exactly the unrefined field amplitudes (amplitudes64 cast to float32,
+    the same operations) of sigmas and the voxel counts: voxels below row ``first``, the true
+    counts tvox (float64, GaussianSet.true_voxels) from there on."""
+    bad = np.zeros(_BLOCKS, np.bool_)
+    parallel_for(_match_rows, _BLOCKS, sigmas, voxels, amps, np.int64(first), tvox, bad)
     return not bad.any()
 
 
