@@ -1,4 +1,4 @@
-"""How every kernel is compiled: ``njit``/``prange`` (numba, or plain Python without it), the
+"""How every kernel is compiled: ``njit`` (numba, or plain Python without it), the
 on-disk cache located per importing identity (see cachedir.py), and ``parallel_for``, which runs
 a serial kernel over chunks of a range on Python threads.
 
@@ -8,12 +8,9 @@ start about 40% of its compile seconds (the field error 20 s against 8 s serial,
 frame 29 s against 21 s). A kernel ``k(lo, hi, ...)`` does indices lo..hi-1 of its loop;
 ``parallel_for(k, n, ...)`` splits [0, n) into chunks that the threads take in turn, so every
 index is computed by the same code whatever the thread count and the result does not depend on it.
-
-The lock: under numba's workqueue threading layer (what numba falls back to without TBB or
-OpenMP, e.g. on stock macOS) two threads inside parallel regions at once abort the process
-("Concurrent access has been detected"). The viewport worker and a final render can do exactly
-that, so parallel kernels launch one at a time on every layer; the serial, nogil kernels do not
-need it. Parallel kernels are entry points: they are called from Python, never from other kernels.
+Nor is there numba's threading layer to guard: under its workqueue layer (no TBB or OpenMP, e.g.
+stock macOS) two threads inside parallel regions at once abort the process, which a viewport
+render beside a final render did.
 
 One signature per kernel: numba compiles a kernel again for every distinct argument type its
 callers pass, and a literal is a type of its own (f(x, 8) and f(x, n) compile f twice; so do a
@@ -21,7 +18,6 @@ read-only and a writable array). Call sites pass np.int64(8), and files map writ
 """
 from __future__ import annotations
 
-import functools
 import os
 import tempfile
 import threading
@@ -30,16 +26,13 @@ import numpy as np
 
 from . import cachedir
 
-PARALLEL_LOCK = threading.RLock()
-
 try:
     import numba
-    from numba import njit, prange
+    from numba import njit
     from numba.core import caching as _caching
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover - numba is optional for the reader
     HAVE_NUMBA = False
-    prange = range
 
     def njit(*args, **kwargs):
         return (lambda f: f) if not args or not callable(args[0]) else args[0]
@@ -86,29 +79,6 @@ if HAVE_NUMBA:
 
 def _uid():
     return os.getuid() if hasattr(os, "getuid") else 0
-
-
-class ParallelKernel:
-    """A ``parallel=True`` dispatcher called under PARALLEL_LOCK; attributes (py_func,
-    signatures, ...) are the dispatcher's."""
-
-    def __init__(self, dispatcher):
-        self.dispatcher = dispatcher
-        functools.update_wrapper(self, getattr(dispatcher, "py_func", dispatcher))
-
-    def __call__(self, *args, **kwargs):
-        with PARALLEL_LOCK:
-            return self.dispatcher(*args, **kwargs)
-
-    def __getattr__(self, name):
-        return getattr(self.dispatcher, name)
-
-
-def parallel_njit(**options):
-    """``njit(parallel=True, **options)`` whose Python calls launch one at a time."""
-    def wrap(fn):
-        return ParallelKernel(njit(parallel=True, **options)(fn))
-    return wrap
 
 
 _POOL = {}  # "pool": the threads parallel_for runs chunks on (grown to the most threads asked for)
@@ -177,11 +147,3 @@ def parallel_for(kernel, n: int, *args, threads: int | None = None, chunks_per_t
         return
     edges = [n * c // nchunk for c in range(nchunk + 1)]
     run_on_threads(nchunk, lambda c: kernel(np.int64(edges[c]), np.int64(edges[c + 1]), *args), threads)
-
-
-def threading_layer() -> str:
-    """The threading layer numba chose (known after the first parallel launch), or '' ."""
-    try:
-        return numba.threading_layer()
-    except Exception:  # noqa: BLE001  (none chosen yet, or no numba)
-        return ""
