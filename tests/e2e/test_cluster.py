@@ -117,7 +117,13 @@ def test_local_cluster_equals_serial_then_skips(serial):
     assert res2["workers"] == []  # nothing left to do: no cluster started
 
     # a frame re-baked (another source): only that one is converted again
-    shutil.copyfile(SAMPLE, os.path.join(os.path.dirname(pattern), "m_0002.vdb"))
+    rebaked = os.path.join(os.path.dirname(pattern), "m_0002.vdb")
+    if os.path.isfile(FIRE):  # frame 2 is the fire: the smoke instead
+        shutil.copyfile(SAMPLE, rebaked)
+    else:  # frame 2 is the smoke already: a small Mantaflow-like bake
+        from vdb_fixtures import write_mantaflow_like
+
+        write_mantaflow_like(rebaked)
     third = json_line(cli("convert", pattern, "--lod", "medium", "--cache-dir", str(cache),
                           "--workers", "1", "--json").stdout)
     assert [f["frame"] for f in third["frames"] if not f.get("skipped")] == [2]
