@@ -8,10 +8,13 @@ the last step, so nothing is left half-built).
 First, when ``wait`` names warm-up jobs (kernels/warmup.py) not compiled yet, it starts or joins
 the background warm-up (engine/warmup_service.py) and waits for it, each step only reading its
 status; if the warm-up fails, the kernels compile here as before (said in the text). Then it runs
-the conversion's own steps (one grid x one LOD each), or a sequence in one go, then creates the
-objects.
+the conversion's own steps (one grid x one LOD each) on a worker thread, each UI step only asking
+whether the one under way is done: a step of a large grid takes seconds, and even on a small one
+the first use of the kernels in a session (loading them from the cache) takes most of a second.
+A sequence is imported in one go. The objects are created last, on Blender's thread.
 """
 
+import threading
 import time
 
 from ..engine import warmup_service
@@ -47,7 +50,7 @@ def import_steps(context, paths, options, sequence=True, wait=()):
         return objs, message
     skipped, done = [], []
     for i, path in enumerate(paths):
-        steps = importer.convert_steps(path, options, skipped)
+        steps = on_a_thread(importer.convert_steps(path, options, skipped))
         try:
             while True:
                 try:
@@ -72,3 +75,49 @@ def import_steps(context, paths, options, sequence=True, wait=()):
             view_layer.objects.active = objs[-1]
     timing = importer.import_timing(converted, t2 - t0, t2 - t1)
     return objs, importer.status_message(objs, skipped, timing)
+
+
+def on_a_thread(steps, poll=0.02):
+    """``steps`` (a generator of (fraction, text) that touches no bpy data) with each of its
+    next() calls run on a worker thread: while one runs, this yields the last (fraction, text)
+    again after at most ``poll`` s. Closed early (Esc), the step under way finishes on its thread,
+    which then closes ``steps`` (nothing is created before the last step)."""
+    last = (0.0, "")
+    while True:
+        box = {}
+        worker = threading.Thread(target=_advance, args=(steps, box), daemon=True,
+                                  name="gaussvdb-import")
+        worker.start()
+        try:
+            while worker.is_alive():
+                worker.join(poll)
+                if worker.is_alive():
+                    yield last
+        except GeneratorExit:
+            threading.Thread(target=_close_after, args=(worker, steps), daemon=True).start()
+            raise
+        if "error" in box:
+            steps.close()
+            raise box["error"]
+        if "done" in box:
+            return box["done"]
+        last = box["item"]
+        try:
+            yield last
+        except GeneratorExit:
+            steps.close()
+            raise
+
+
+def _advance(steps, box):
+    try:
+        box["item"] = next(steps)
+    except StopIteration as stop:
+        box["done"] = stop.value
+    except BaseException as err:  # noqa: BLE001  (raised again on Blender's thread)
+        box["error"] = err
+
+
+def _close_after(worker, steps):
+    worker.join()
+    steps.close()
