@@ -61,6 +61,16 @@ def start():
     return bpy
 
 
+def kernels_module(name: str):
+    """``kernels.<name>`` as this process compiles it: the extension's copy once start() ran
+    (numba caches a kernel under the module name it was imported as, so reading a file with the
+    plain ``kernels`` beside the extension compiled the reader twice, ~7 s of a cold render),
+    else the plain package (convert, which never starts Blender)."""
+    import importlib
+
+    return importlib.import_module(f"{MODULE}.kernels.{name}" if "bpy" in _STARTED else f"kernels.{name}")
+
+
 def addon_module(name: str):
     """A submodule of the enabled extension, e.g. addon_module('gaussvdb_addon.io.importer')."""
     import importlib

@@ -1,11 +1,13 @@
-"""Which grid of a .vdb file `render` and `convert` use, decided from the topology alone (cheap,
-before Blender starts or kernels load); when none can be used, the refusal says why per grid.
+"""Which grid of a .vdb file `render` and `convert` use, decided from the topology alone (cheap:
+no values are decoded); when none can be used, the refusal says why per grid. Read with the
+kernels the process runs (blender_session.kernels_module: the extension's once Blender is up).
 The default is the import's (kernels.pipeline.default_grids: a Mantaflow cache gives density),
 the first of those that can be used. A sequence's grid: the first of its frames that has one."""
 from __future__ import annotations
 
 import os
 
+from blender_session import kernels_module
 from cli_errors import InputError
 
 
@@ -21,9 +23,7 @@ def unusable(grid, vector_magnitude=False):
 def check_color_grid(path, name, vector_magnitude=False) -> str:
     """The colour grid ``name`` (--color-grid), checked like --grid: InputError naming the grid and
     the file when the file holds no such usable grid."""
-    from kernels.vdb import read_topology
-
-    topo = read_topology(path)
+    topo = kernels_module("vdb").read_topology(path)
     listed = [g.name for g in topo.grids] + [n for n, _ in topo.skipped]
     if name not in listed:
         raise InputError(f"no colour grid {name!r} in {path} (grids: {', '.join(listed) or 'none'})")
@@ -40,10 +40,7 @@ def choose_grid(path, grid=None, vector_magnitude=False) -> str:
     """The named grid, or the first usable default one; InputError naming the file and each
     grid's reason. A file the reader refuses raises its VDBFormatError (which names the file and
     byte offset)."""
-    from kernels.pipeline import default_grids
-    from kernels.vdb import read_topology
-
-    topo = read_topology(path)
+    topo = kernels_module("vdb").read_topology(path)
     # the reader's own reasons for grids it skips (points, integers, ...), then ours
     reasons = dict(topo.skipped)
     reasons.update((g.name, why) for g in topo.grids if (why := unusable(g, vector_magnitude)))
@@ -54,7 +51,7 @@ def choose_grid(path, grid=None, vector_magnitude=False) -> str:
         if grid in reasons:
             raise InputError(f"grid {grid!r} of {path} cannot be used: {reasons[grid]}")
         return grid
-    wanted, left_out = default_grids(listed)
+    wanted, left_out = kernels_module("pipeline").default_grids(listed)
     reasons.update((n, "left out by default in a Mantaflow cache (name it with --grid)")
                    for n, _ in left_out if n not in reasons)
     usable = [name for name in (listed if wanted is None else wanted) if name not in reasons]

@@ -141,9 +141,9 @@ def table(result) -> str:
 
 def main(argv) -> int:
     args = parse(argv)
-    from kernels.vdb import read_topology
+    from kernels.vdb import check_header
 
-    read_topology(args.file)  # a missing or unreadable file is refused before Blender starts
+    check_header(args.file)  # a missing file or not a .vdb file: refused before Blender starts
     result = run(args)
     print(json.dumps(result, indent=1, default=str) if args.json else table(result))
     return 0

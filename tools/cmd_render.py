@@ -130,10 +130,13 @@ def render(args) -> dict:
     import cli_grids
     from blender_session import addon_module, start
 
+    from kernels.vdb import check_header
+
+    check_header(args.file)  # a missing file or not a .vdb file: refused before Blender starts
+    bpy = start()  # then the grid checks read with the extension's kernels (compiled once)
     grid = cli_grids.choose_grid(args.file, args.grid, args.vector_magnitude)
     if args.color_grid:
         cli_grids.check_color_grid(args.file, args.color_grid, args.vector_magnitude)
-    bpy = start()
     importer = addon_module("gaussvdb_addon.io.importer")
     image_file = addon_module("gaussvdb_addon.engine.image_file")
     check_format(image_file, args.out)

@@ -4,8 +4,7 @@ compile the numba kernels now (kernels/warmup.py's jobs), so later commands load
 numba's cache entries load only under the module names they were compiled under
 (kernels/cachedir.py). `./gaussvdb render` (and `demo`) run the extension in the bpy module as
 `bl_ext.user_default.gaussvdb` (tools/blender_session.py), `./gaussvdb convert` imports `kernels`
-directly: `--for` says which to warm (default render; it reads the file's topology as `kernels`
-too, so its reader job runs under both). The cache root is the one those commands
+directly: `--for` says which to warm (default render). The cache root is the one those commands
 use: `--cache-dir`, else GAUSSVDB_CACHE_DIR, else the user's cache folder.
 """
 
@@ -21,15 +20,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def packages(which: str, names) -> list:
-    """(label, package the kernels are imported under, jobs) of each identity to warm. `render`
-    also reads the file's topology itself, as `kernels` (tools/render_setup.py, cli_grids.py)."""
+    """(label, package the kernels are imported under, jobs) of each identity to warm."""
     from blender_session import MODULE
 
     out = []
     if which in ("render", "both"):
         out.append(("render", MODULE, names))
-    if which == "render" and "reader" in names:
-        out.append(("render's file checks", "", ["reader"]))
     if which in ("convert", "both"):
         out.append(("convert", "", names))
     return out

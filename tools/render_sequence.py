@@ -80,8 +80,8 @@ def prepare(args) -> dict:
     from blender_session import addon_module, start
 
     pat, frames, inside = frames_of(args)
+    bpy = start()  # first: the file checks read with the extension's kernels (one compile)
     grid = choose_grid(pat, inside, args)
-    bpy = start()
     importer = addon_module("gaussvdb_addon.io.importer")
     sequence_import = addon_module("gaussvdb_addon.io.sequence_import")
     image_file = addon_module("gaussvdb_addon.engine.image_file")

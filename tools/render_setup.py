@@ -44,10 +44,9 @@ def voxel_box(path, grid):
     """Index-space box (voxel corners) of ``grid``'s active voxels in ``path``, from the topology:
     what the camera frames, whatever LOD is drawn (a LOD's Gaussians span another box)."""
     import numpy as np
+    from blender_session import kernels_module
 
-    from kernels.vdb import read_topology
-
-    g = next(g for g in read_topology(path, [grid]).grids if g.name == grid)
+    g = next(g for g in kernels_module("vdb").read_topology(path, [grid]).grids if g.name == grid)
     return np.asarray(g.bbox_min, np.float64) - 0.5, np.asarray(g.bbox_max, np.float64) + 0.5
 
 

@@ -7,8 +7,8 @@
 
 from .errors import VDBFormatError
 from .griddata import GridData, VDBFile
-from .reader import DEFAULT_MAX_BYTES, estimate_bytes, read_topology, read_vdb
+from .reader import DEFAULT_MAX_BYTES, check_header, estimate_bytes, read_topology, read_vdb
 from .sanitize import count_nonfinite, sanitize_nonfinite
 
-__all__ = ["read_vdb", "read_topology", "estimate_bytes", "VDBFormatError", "GridData", "VDBFile",
+__all__ = ["read_vdb", "read_topology", "check_header", "estimate_bytes", "VDBFormatError", "GridData", "VDBFile",
            "DEFAULT_MAX_BYTES", "count_nonfinite", "sanitize_nonfinite"]

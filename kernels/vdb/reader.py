@@ -459,6 +459,24 @@ def struct_error():
     return struct.error
 
 
+def check_header(path):
+    """Raise VDBFormatError unless ``path`` is a readable file that starts as a .vdb file does
+    (magic number, a supported version, a sane grid count). Plain Python, nothing compiled: what
+    a command can refuse before it starts Blender."""
+    buf = _load(path)
+    try:
+        _header(Cursor(buf, os.fspath(path)))
+    except VDBFormatError:
+        raise
+    except (ValueError, IndexError, struct_error()) as e:
+        raise VDBFormatError(f"malformed file: {type(e).__name__}: {e}", os.fspath(path)) from e
+    finally:
+        try:
+            buf.close()
+        except BufferError:
+            pass
+
+
 def read_topology(path, grids=None, **kw):
     """Origins, masks, tiles, transforms and counts without decompressing leaf values."""
     return read_vdb(path, grids, topology_only=True, **kw)

@@ -76,7 +76,9 @@ def files(tmp_path_factory):
 
 
 # (argv with {name} for the files above, exit status, words the line must hold, refused before
-# Blender starts). Options are checked first, so bad options come with a good file.
+# Blender starts). Options are checked first, so bad options come with a good file. What the file's
+# header shows is refused before Blender starts; its grids are checked after, with the
+# extension's own reader (one compile of the reader, not two).
 S = "{sample}"
 CASES = [
     # render: files
@@ -85,14 +87,14 @@ CASES = [
     (["render", "{zero}"], 1, ["zero.vdb", "empty file"], True),
     (["render", "{text}"], 1, ["text.vdb", "not a VDB file"], True),
     (["render", "{garbage}"], 1, ["garbage.vdb"], True),
-    (["render", "{trunc}"], 1, ["trunc.vdb", "grid"], True),
-    (["render", "{empty}"], 1, ["empty.vdb", "density: empty grid"], True),
-    (["render", "{vec}"], 1, ["vec.vdb", "vel: vec3s grid", "--vector-magnitude"], True),
-    (["render", "{int}"], 1, ["int.vdb", "ids: integer grid"], True),
-    (["render", "{points}"], 1, ["points.vdb", "points: point"], True),
-    (["render", "{mixed}"], 1, ["mixed.vdb", "density: empty", "vel: vec3s", "ids: integer"], True),
-    (["render", S, "--grid", "nosuch"], 1, ["'nosuch'", "density"], True),
-    (["render", S, "--grid", "velocity"], 1, ["'velocity'", "--vector-magnitude"], True),
+    (["render", "{trunc}"], 1, ["trunc.vdb", "grid"], False),
+    (["render", "{empty}"], 1, ["empty.vdb", "density: empty grid"], False),
+    (["render", "{vec}"], 1, ["vec.vdb", "vel: vec3s grid", "--vector-magnitude"], False),
+    (["render", "{int}"], 1, ["int.vdb", "ids: integer grid"], False),
+    (["render", "{points}"], 1, ["points.vdb", "points: point"], False),
+    (["render", "{mixed}"], 1, ["mixed.vdb", "density: empty", "vel: vec3s", "ids: integer"], False),
+    (["render", S, "--grid", "nosuch"], 1, ["'nosuch'", "density"], False),
+    (["render", S, "--grid", "velocity"], 1, ["'velocity'", "--vector-magnitude"], False),
     # render: options
     (["render", S, "--lod", "ultra"], 2, ["--lod", "'ultra'", "merged"], True),
     (["render", S, "--size", "0x10"], 2, ["--size", "0x10"], True),
@@ -139,7 +141,7 @@ CASES = [
     (["convert", "{empty}", "--grid", "density"], 1, ["empty.vdb", "'density'", "empty grid"], True),
     (["convert", S, "--grid", "nosuch"], 1, ["'nosuch'", "density"], True),
     (["convert", S, "--color-grid", "nosuch"], 1, ["colour grid 'nosuch'", "density"], True),
-    (["render", S, "--color-grid", "nosuch"], 1, ["colour grid 'nosuch'", "density"], True),
+    (["render", S, "--color-grid", "nosuch"], 1, ["colour grid 'nosuch'", "density"], False),
     (["render", "{seq}", "--color-grid", "density"], 2, ["--color-grid", "sequence"], True),
     # info
     (["info", "{missing}"], 1, ["missing.vdb", "no such file"], True),
