@@ -229,7 +229,9 @@ def _sort_masks(t0, t1, box, lb, start, ntx, items, masks):
         b = start[t + 1]
         if b - a > 1:
             order = np.argsort(lb[items[a:b]], kind="mergesort")  # stable: ties keep id order
-            items[a:b] = items[a:b][order]
+            sorted_ids = items[a:b][order]
+            for q in range(b - a):  # (a slice assignment compiles numba's shape-error text: ~2 s)
+                items[a + q] = sorted_ids[q]
         x0 = (t % ntx) * TILE
         y0 = (t // ntx) * TILE
         for q in range(a, b):
