@@ -168,3 +168,20 @@ def test_tile_budget_grows_with_the_set_within_the_memory(monkeypatch):
     assert accel_mod.tile_budget(24_000_000, 24_000_000) == 24_000_000
     monkeypatch.setattr(accel_mod, "available_bytes", lambda: None)
     assert accel_mod.tile_budget(24_000_000, 10) == 10
+
+
+def test_tile_list_sort_is_numpys_stable_argsort():
+    """The tile lists' own merge sort orders ids as np.argsort(kind="mergesort") does: by entry
+    bound, ties (equal, +-inf, NaN last) in id order, and touches nothing outside its range."""
+    from kernels.render.cpu.tiles import _sort_by_lb
+
+    rng = np.random.default_rng(1)
+    for trial in range(200):
+        n = int(rng.integers(2, 300))
+        lb = (rng.choice(np.array([0.0, 1.0, 2.0, np.inf, -np.inf, np.nan, 0.5]), n + 50) if trial % 2
+              else rng.normal(size=n + 50))
+        ids = np.sort(rng.choice(n + 50, n, replace=False)).astype(np.int32)
+        items = np.concatenate([[7], ids, [3]]).astype(np.int32)
+        _sort_by_lb(items, np.int64(1), np.int64(1 + n), lb)
+        assert np.array_equal(items[1:1 + n], ids[np.argsort(lb[ids], kind="mergesort")]), trial
+        assert items[0] == 7 and items[-1] == 3

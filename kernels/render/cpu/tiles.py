@@ -222,16 +222,50 @@ def _scatter(c0, c1, box, ntx, fill, items):
 
 
 @njit(**_jit)
+def _sort_by_lb(items, a, b, lb):
+    """items[a:b] (ids in increasing order) sorted stably by lb[id], NaN last: what
+    np.argsort(kind="mergesort") gives, as a bottom-up merge sort of its own (numba's stable
+    argsort compiled 1.5 s of a cold frame)."""
+    n = b - a
+    src = items[a:b].copy()
+    dst = np.empty_like(src)
+    w = 1
+    while w < n:
+        for lo in range(0, n, 2 * w):
+            mid = min(lo + w, n)
+            hi = min(lo + 2 * w, n)
+            i, j, k = lo, mid, lo
+            while i < mid and j < hi:
+                x, y = lb[src[j]], lb[src[i]]
+                if x < y or (x == x and y != y):  # the right one strictly first: ties keep order
+                    dst[k] = src[j]
+                    j += 1
+                else:
+                    dst[k] = src[i]
+                    i += 1
+                k += 1
+            while i < mid:
+                dst[k] = src[i]
+                i += 1
+                k += 1
+            while j < hi:
+                dst[k] = src[j]
+                j += 1
+                k += 1
+        src, dst = dst, src
+        w *= 2
+    for q in range(n):
+        items[a + q] = src[q]
+
+
+@njit(**_jit)
 def _sort_masks(t0, t1, box, lb, start, ntx, items, masks):
     """Each tile's list sorted by (lb, id), and its pixel masks."""
     for t in range(t0, t1):
         a = start[t]
         b = start[t + 1]
         if b - a > 1:
-            order = np.argsort(lb[items[a:b]], kind="mergesort")  # stable: ties keep id order
-            sorted_ids = items[a:b][order]
-            for q in range(b - a):  # (a slice assignment compiles numba's shape-error text: ~2 s)
-                items[a + q] = sorted_ids[q]
+            _sort_by_lb(items, a, b, lb)
         x0 = (t % ntx) * TILE
         y0 = (t // ntx) * TILE
         for q in range(a, b):
