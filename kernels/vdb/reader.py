@@ -68,6 +68,13 @@ def _load(path):
         raise VDBFormatError(f"cannot open: {e.strerror}", p) from None
 
 
+def _close(buf):
+    try:
+        buf.close()
+    except BufferError:  # a view is still alive somewhere; the GC closes it later
+        pass
+
+
 def _header(cur):
     magic = cur.i64("magic number")
     if magic & 0xFFFFFFFF != MAGIC:
@@ -270,10 +277,7 @@ class _Reader:
         try:
             return self._read(buf, grids, allow_fallback)
         finally:
-            try:
-                buf.close()
-            except BufferError:  # a view is still alive somewhere; the GC closes it later
-                pass
+            _close(buf)
 
     def _read(self, buf, grids, allow_fallback):
         cur = Cursor(buf, self.path)
@@ -471,10 +475,7 @@ def check_header(path):
     except (ValueError, IndexError, struct_error()) as e:
         raise VDBFormatError(f"malformed file: {type(e).__name__}: {e}", os.fspath(path)) from e
     finally:
-        try:
-            buf.close()
-        except BufferError:
-            pass
+        _close(buf)
 
 
 def read_topology(path, grids=None, **kw):
