@@ -137,3 +137,30 @@ def test_voxel_stats_counts_tiles_by_volume(tmp_path):
     st = voxel_stats(g)
     assert st["voxels"] == g.active_voxels == 16 ** 3 + 1
     assert st["nonpositive"] == 16 ** 3 and st["min"] == -2.0 and st["max"] == 3.0
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float16, np.float64, np.int32])
+def test_voxel_stats_equal_a_per_voxel_count(dtype):
+    """NaN, +-Inf, zeros and negatives among the active voxels, inactive voxels holding other
+    values, chunks that split the leaves, each value type: the figures equal a plain count."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(11)
+    n = 37
+    vals = rng.uniform(-2.0, 3.0, (n, 512))
+    vals[rng.random(vals.shape) < 0.05] = 0.0
+    if np.dtype(dtype).kind == "f":
+        vals[0, :4] = [np.nan, np.inf, -np.inf, 1e-7]
+    vals = vals.astype(dtype)
+    masks = rng.integers(0, 2**63, (n, 8), dtype=np.uint64) | np.uint64(1)
+    masks[5] = 0  # a leaf without active voxels
+    on = np.unpackbits(masks.view(np.uint8), axis=1, bitorder="little").astype(bool)
+    grid = SimpleNamespace(leaf_masks=masks, leaf_values=vals, tile_active=np.array([True, False]),
+                           tile_sizes=np.array([8, 16]), tile_values=np.array([-1.0, 99.0]))
+    st = voxel_stats(grid, chunk=10)
+    act = np.concatenate([vals[on].astype(np.float64), [-1.0]])
+    fin = act[np.isfinite(act)]
+    assert st["voxels"] == int(on.sum()) + 8**3
+    assert st["nonpositive"] == int((~(act[:-1] > 0)).sum()) + 8**3
+    assert st["min"] == fin.min() and st["max"] == fin.max()
+    assert st["positive_min"] == act[act > 0].min()

@@ -139,25 +139,31 @@ def voxel_stats(grid, chunk=1 << 14):
     lo, hi, pmin = np.inf, -np.inf, np.inf
     bad = total = 0
 
-    def add(v, weight=None):
+    def add(v, weight=None):  # one pass per test, in the grid's own dtype (no float64 copy)
         nonlocal lo, hi, pmin, bad, total
         if v.size == 0:
             return
-        w = np.ones(v.size, np.int64) if weight is None else weight
+        if v.dtype.kind != "f":
+            v = v.astype(np.float64)
         fin = np.isfinite(v)
-        if fin.any():
-            lo, hi = min(lo, float(v[fin].min())), max(hi, float(v[fin].max()))
-        pos = v[v > 0]
-        if pos.size:
-            pmin = min(pmin, float(pos.min()))
-        bad += int(w[~(v > 0)].sum())
-        total += int(w.sum())
+        f = v if fin.all() else v[fin]
+        if f.size:
+            lo, hi = min(lo, float(f.min())), max(hi, float(f.max()))
+        pos = v > 0
+        if pos.any():
+            pmin = min(pmin, float(np.min(v, where=pos, initial=np.inf)))
+        if weight is None:
+            bad += v.size - int(np.count_nonzero(pos))
+            total += v.size
+        else:
+            bad += int(weight[~pos].sum())
+            total += int(weight.sum())
 
     masks = np.ascontiguousarray(grid.leaf_masks, np.uint64).reshape(-1, 8)
     values = grid.leaf_values
     for a in range(0, len(masks), chunk):
-        m = np.unpackbits(masks[a:a + chunk].view(np.uint8), axis=1, bitorder="little").astype(bool)
-        add(np.asarray(values[a:a + chunk], np.float64)[m])
+        m = np.unpackbits(masks[a:a + chunk].view(np.uint8), axis=1, bitorder="little").view(bool)
+        add(np.asarray(values[a:a + chunk])[m])
     act = np.asarray(grid.tile_active, bool)
     if act.any():
         sizes = np.asarray(grid.tile_sizes, np.int64)[act]
