@@ -175,6 +175,29 @@ def union_stats(items):
             "voxels": sum(int(s["voxels"]) for s in items)}
 
 
+def frame_figures(path, wanted=None) -> dict:
+    """One frame's part of a sequence import, read once: {"names": its grids in file order,
+    "grids": {name: {"values": voxel_stats or None (level sets), "box": leaf box (lo, hi)}}}
+    for the scalar grids of ``wanted`` (None: all) holding voxels, or {"error": reason} when the
+    file cannot be read. Plain values: a cluster task returns them to the driver."""
+    from . import pipeline, vdb
+    from .render.scene.transfer import voxel_stats
+
+    try:
+        names = [g.name for g in vdb.read_topology(path).grids]
+        keep = [g for g in names if wanted is None or g in wanted]
+        f = vdb.read_vdb(path, keep) if keep else None
+    except (vdb.VDBFormatError, OSError, MemoryError) as err:
+        return {"error": getattr(err, "reason", None) or str(err)}
+    grids = {}
+    for g in f.grids if f is not None else ():
+        if g.value_type.startswith("vec3") or not g.active_voxels:
+            continue
+        grids[g.name] = {"values": None if g.grid_class == "level_set" else voxel_stats(g),
+                         "box": pipeline.leaf_box(g)}
+    return {"names": names, "grids": grids}
+
+
 # -- converted frames in memory -------------------------------------------------------------------
 class LRUCache:
     """Values with a size in bytes, the least recently used evicted once the total passes the

@@ -217,9 +217,10 @@ def _finish(res, items, t_all, report_path, dash):
     return res
 
 
-def _loop(client_args, prog, todo, submit, label, items, flush, record=None):
+def _loop(client_args, prog, todo, submit, label, items, flush, record=None, before=None):
     """Run ``todo`` on the cluster (none started when nothing is left to do); each finished
-    item, after ``record(item)``, joins ``items`` and the run's JSON is rewritten."""
+    item, after ``record(item)``, joins ``items`` and the run's JSON is rewritten.
+    ``before(client, threads)`` runs first, on the same cluster (what every frame needs)."""
     dash = None
     if not todo:
         return dash
@@ -227,6 +228,8 @@ def _loop(client_args, prog, todo, submit, label, items, flush, record=None):
         dash = dashboard(client)
         if dash:
             print(f"{prog}: Dask dashboard at {dash}", file=sys.stderr)
+        if before is not None:
+            before(client, threads)
 
         def on_item(item):
             if record:
@@ -338,10 +341,19 @@ def render_sequence(args) -> dict:
         else:
             todo.append(f)
 
+    known = {}  # every frame's figures (the colour range, the camera's box): read once, spread
+
+    def read_figures(client, threads):
+        futures = client.map(cluster_tasks.frame_figures, [pat.path(n) for n in inside],
+                             grid=grid, threads=threads, root=ROOT, retries=RETRIES, pure=False)
+        for n, fut in zip(inside, futures):
+            with contextlib.suppress(Exception):  # lost: the workers read that frame themselves
+                known[n] = fut.result()
+
     def submit(f, threads):
         a = type(args)(**{**vars(args), "threads": threads or args.threads})
         return cluster_tasks.render_frame, (a, key, f, os.path.abspath(rs.out_path(args.out, f)),
-                                            ROOT)
+                                            ROOT, known)
 
     def flush():
         write_json(report_path, {**res, "frames": sorted(items, key=lambda i: i["frame"]),
@@ -352,7 +364,7 @@ def render_sequence(args) -> dict:
             item.update(key=key, out_fingerprint=seq.fingerprint(item["out"]))
 
     dash = _loop((args.workers, args.scheduler, 0 if args.scheduler else args.threads), prog,
-                 todo, submit, "render", items, flush, record)
+                 todo, submit, "render", items, flush, record, read_figures)
     sweep(os.path.abspath(rs.out_path(args.out, f)) for f in todo)
     warnings = []
     for item in sorted(items, key=lambda i: i["frame"]):

@@ -154,14 +154,25 @@ def convert_frame(job: ConvertJob, frame: int, path: str, root=None) -> dict:
     return _stamp(item, t0, rss0)
 
 
+def frame_figures(path: str, grid: str, threads=0, root=None) -> dict:
+    """kernels.sequence.frame_figures of one frame of a sequence to render (its value figures
+    and box): the driver gives them all to the render tasks, so no worker reads every frame."""
+    use_root(root)
+    from kernels import sequence as seq
+
+    set_threads(threads)
+    return seq.frame_figures(path, [grid])
+
+
 _PREPARED = {}  # this worker's Blender scene for the run it renders: {run key: prepared}
 
 
-def render_frame(args, key: str, frame: int, out: str, root=None) -> dict:
+def render_frame(args, key: str, frame: int, out: str, root=None, known=None) -> dict:
     """Scene frame ``frame`` of the sequence of ``args`` (`render`'s options) drawn to
     ``out`` through a temporary name. The first frame of a run in this process starts Blender
-    and prepares the scene as the serial `render` does (tools/render_sequence.prepare), so
-    every worker draws the same camera and colour range; the next ones reuse it."""
+    and prepares the scene as the serial `render` does (tools/render_sequence.prepare; with
+    ``known``, the frames' figures frame_figures read), so every worker draws the same camera
+    and colour range; the next ones reuse it."""
     use_root(root)
     import cli_errors
     import render_sequence
@@ -174,7 +185,7 @@ def render_frame(args, key: str, frame: int, out: str, root=None) -> dict:
     if prepared is None:
         _PREPARED.clear()  # one run's scene at a time: prepare() starts from an empty file
         try:
-            prepared = _PREPARED[key] = render_sequence.prepare(args)
+            prepared = _PREPARED[key] = render_sequence.prepare(args, known)
         except (cli_errors.InputError, cli_errors.UsageError) as err:  # the run's, not the frame's
             return {"frame": frame, "refusal": str(err)}
     os.makedirs(os.path.dirname(out), exist_ok=True)
@@ -214,3 +225,28 @@ def dask_setup(worker=None):
     share the command's stdout, which carries its JSON."""
     sys.stdout.flush()
     os.dup2(2, 1)
+    if worker is not None:
+        quiet_worker(worker)
+
+
+def quiet_worker(worker):
+    """What a Dask worker does besides our tasks, made to cost nothing measurable.
+    - Its statistical profiler samples the task's stack every 10 ms, holding the GIL: with one
+      thread per worker on every core, it took a fifth of a rendered sequence's time.
+    - Its nanny starts it with MALLOC_TRIM_THRESHOLD_=65536, which also fixes glibc's mmap
+      threshold at 128 KiB: every array a frame allocates is mapped and faulted in anew (3x the
+      system time). glibc's own adaptive limits are restored (at their 64-bit maxima); the
+      tasks hand the frame's memory back after each frame themselves (release_freed)."""
+    for name in ("profile", "profile-cycle"):
+        pc = worker.periodic_callbacks.pop(name, None)
+        if pc is not None:
+            pc.stop()
+    if sys.platform.startswith("linux") and os.environ.get("MALLOC_TRIM_THRESHOLD_"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None)
+            libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD: arrays under 32 MiB reuse the heap
+            libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD: twice that, as glibc adapts it
+        except (OSError, AttributeError):  # a C library without mallopt (musl)
+            pass

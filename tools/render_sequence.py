@@ -74,9 +74,11 @@ def sequence_box(obj):
     return index_box_world(obj, obj.gaussvdb.leaf_box_min, obj.gaussvdb.leaf_box_max)
 
 
-def prepare(args) -> dict:
+def prepare(args, known=None) -> dict:
     """Blender started, the sequence imported and the scene built as `render` draws it: what
-    rendering any one of its frames needs (a cluster worker prepares it once for its frames)."""
+    rendering any one of its frames needs (a cluster worker prepares it once for its frames).
+    ``known``: {frame: kernels.sequence.frame_figures} of the frames, read once by the cluster's
+    tasks rather than again by every worker."""
     from blender_session import addon_module, start
 
     pat, frames, inside = frames_of(args)
@@ -91,7 +93,7 @@ def prepare(args) -> dict:
     try:
         objs = sequence_import.import_sequence(
             pat.path(inside[0]), [inside[0], inside[-1]], options=convert_options(args, grid),
-            collection=bpy.context.scene.collection)
+            collection=bpy.context.scene.collection, known=known)
     except importer.VDBImportError as err:
         raise InputError(f"{args.file}: {err}") from err
     seconds_import = time.perf_counter() - t0

@@ -67,44 +67,38 @@ def any_sequence(paths) -> bool:
     return any(is_seq for _, _, is_seq in sequences(paths))
 
 
-def _frame_pass(pat, present, wanted, progress):
-    """Read every frame once: per grid and frame the value figures and leaf box; frames that
-    cannot be read -> {number: reason}. Returns (figures {grid: {number: stats}}, boxes {grid:
-    (lo, hi)}, {grid: frames holding voxels}, grid names in order of appearance, unreadable)."""
-    from ...kernels import vdb
-    from ...kernels.render.scene.transfer import voxel_stats
-
+def _frame_pass(pat, present, wanted, progress, known=None):
+    """Every frame's figures (kernels.sequence.frame_figures; ``known``: {number: those figures}
+    already read, e.g. by cluster tasks): per grid and frame the value figures and leaf box;
+    frames that cannot be read -> {number: reason}. Returns (figures {grid: {number: stats}},
+    boxes {grid: (lo, hi)}, {grid: frames holding voxels}, grid names in order of appearance,
+    unreadable)."""
     figures, boxes, holds, names, unreadable = {}, {}, {}, [], {}
     for i, n in enumerate(present):
         path = pat.path(n)
         if progress is not None:
             progress(0.5 * i / len(present), f"reading {os.path.basename(path)}")
-        try:
-            topo = vdb.read_topology(path)
-            here = [g.name for g in topo.grids]
-            names += [g for g in here if g not in names]
-            keep = [g for g in here if wanted is None or g in wanted]
-            f = vdb.read_vdb(path, keep) if keep else None
-        except (vdb.VDBFormatError, OSError, MemoryError) as err:
-            unreadable[n] = getattr(err, "reason", None) or str(err)
+        got = (known or {}).get(n) or seq.frame_figures(path, wanted)
+        if "error" in got:
+            unreadable[n] = got["error"]
             continue
-        for g in f.grids if f is not None else ():
-            if g.value_type.startswith("vec3") or not g.active_voxels:
-                continue
-            holds.setdefault(g.name, []).append(n)
-            if g.grid_class != "level_set":
-                figures.setdefault(g.name, {})[n] = voxel_stats(g)
-            lo, hi = pipeline.leaf_box(g)
-            blo, bhi = boxes.get(g.name, (lo, hi))
-            boxes[g.name] = (np.minimum(blo, lo), np.maximum(bhi, hi))
+        names += [g for g in got["names"] if g not in names]
+        for name, fig in got["grids"].items():
+            holds.setdefault(name, []).append(n)
+            if fig["values"] is not None:
+                figures.setdefault(name, {})[n] = fig["values"]
+            lo, hi = fig["box"]
+            blo, bhi = boxes.get(name, (lo, hi))
+            boxes[name] = (np.minimum(blo, lo), np.maximum(bhi, hi))
     return figures, boxes, holds, names, unreadable
 
 
 def convert_sequence(path, numbers=None, options=DEFAULTS, progress=None, cancel=None,
-                     skipped=None):
+                     skipped=None, known=None):
     """Phase 1 of a sequence import (no Blender data): [ConvertedGrid] with ``sequence`` set.
     ``options``: a ConvertOptions (its tolerance is the shown frame's; frames converted later
-    use the object's settings, kept by build_objects, with the default tolerance)."""
+    use the object's settings, kept by build_objects, with the default tolerance). ``known``:
+    {frame number: kernels.sequence.frame_figures} read elsewhere, not read again."""
     pat, present = sequence_of(path, numbers)
     skipped = [] if skipped is None else skipped
     wanted = None if options.grids is None else list(options.grids)
@@ -121,7 +115,7 @@ def convert_sequence(path, numbers=None, options=DEFAULTS, progress=None, cancel
                 wanted, left_out = pipeline.default_grids(names)
                 skipped.extend(left_out)
                 break
-        figures, boxes, holds, names, unreadable = _frame_pass(pat, present, wanted, report)
+        figures, boxes, holds, names, unreadable = _frame_pass(pat, present, wanted, report, known)
         if len(unreadable) == len(present):
             n, why = next(iter(unreadable.items()))
             raise VDBImportError(f"no frame of {pat.text} can be read ({os.path.basename(pat.path(n))}: "
@@ -162,11 +156,12 @@ def convert_sequence(path, numbers=None, options=DEFAULTS, progress=None, cancel
 
 
 def import_sequence(path, numbers=None, grids=None, lods=None, *, options=None, collection=None,
-                    progress=None, cancel=None, skipped=None, **changes) -> list:
+                    progress=None, cancel=None, skipped=None, known=None, **changes) -> list:
     """Import a numbered sequence: one object per grid for all its frames. ``grids``, ``lods``
-    and ``changes`` (ConvertOptions fields) over ``options``."""
+    and ``changes`` (ConvertOptions fields) over ``options``; ``known``: frames' figures
+    already read (convert_sequence)."""
     opts = options_of(options, grids, lods, **changes)
-    converted = convert_sequence(path, numbers, opts, progress, cancel, skipped)
+    converted = convert_sequence(path, numbers, opts, progress, cancel, skipped, known)
     objs = build_objects(converted, collection, opts)
     name_objects(objs)
     return objs

@@ -373,3 +373,31 @@ def test_viewport_session_follows_the_timeline(bpy_module, scene, frames, refere
         (obj,) = sess.sync.scene.objects
         _same(obj.gaussians, references[(f, "density")])
     assert sess.update(None, bpy.context.evaluated_depsgraph_get()) is False  # same frame: nothing
+
+
+def test_figures_read_elsewhere_are_taken_as_given(bpy_module, scene, tmp_path):
+    """A cluster reads every frame's figures once (kernels.sequence.frame_figures) and hands
+    them to each worker's import: the same object as an import that reads them itself, and
+    frames whose figures are given are not read again (a changed one shows in the range)."""
+    import importlib
+
+    sequence_import = importlib.import_module(f"{PKG}.gaussvdb_addon.io.sequence_import")
+    seq = importlib.import_module(f"{PKG}.kernels.sequence")
+    first = write_frames(str(tmp_path / "fig"), [1, 2, 3, 4], broken=(4,))
+    pat = seq.parse(first)
+    known = {n: seq.frame_figures(pat.path(n), ["density"]) for n in (1, 2, 3, 4)}
+    assert "error" in known[4] and set(known[2]["grids"]) == {"density"}
+    own = sequence_import.convert_sequence(first, options=_options("density"))[0]
+    given = sequence_import.convert_sequence(first, options=_options("density"), known=known)[0]
+    assert given.sequence == own.sequence and given.values == own.values
+    assert all(np.array_equal(a, b) for a, b in zip(given.leaf_box, own.leaf_box))
+    known[3]["grids"]["density"]["values"] = dict(known[3]["grids"]["density"]["values"], max=99.0)
+    taken = sequence_import.convert_sequence(first, options=_options("density"), known=known)[0]
+    assert taken.values["max"] == 99.0 and taken.sequence["figures"]["values"]["3"]["max"] == 99.0
+
+
+def _options(grid):
+    import importlib
+
+    co = importlib.import_module(f"{PKG}.kernels.convert_options")
+    return co.ConvertOptions(grids=(grid,), lods=("low",), compute_error=False)
