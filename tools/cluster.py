@@ -157,18 +157,21 @@ def write_json(path, obj):
             os.unlink(tmp)
 
 
-def run_frames(client, submit, todo, prog, label, on_item):
+def run_frames(client, submit, todo, prog, label, on_item, size=None):
     """Submit ``submit(frame)`` -> (a cluster_tasks function, args) for each frame of ``todo``; call ``on_item``
     with each finished frame's item in the order they finish. A task that still raises after
     its retries, or whose workers all died, becomes an error item naming the frame. A refusal
-    (bad options, found by the first worker to prepare) stops the run."""
+    (bad options, found by the first worker to prepare) stops the run. ``size(frame)``: the
+    frame's file size; the largest frames run first, so the last ones to finish are small and
+    no worker waits long for another at the end."""
     from distributed import as_completed
 
     run = uuid.uuid4().hex[:8]
     futures = {}
-    for n in todo:
+    for n in sorted(todo, key=size, reverse=True) if size else todo:  # the first go out at once
         fn, args = submit(n)
-        fut = client.submit(fn, *args, key=f"{label}-{n}-{run}", retries=RETRIES, pure=False)
+        fut = client.submit(fn, *args, key=f"{label}-{n}-{run}", retries=RETRIES, pure=False,
+                            priority=size(n) if size else 0)
         futures[fut] = n
     bar = Progress(len(futures), f"{prog}:")
     bar.draw()
@@ -188,6 +191,14 @@ def run_frames(client, submit, todo, prog, label, on_item):
             on_item(item)
     finally:
         bar.close()
+
+
+def file_size(path) -> int:
+    """Bytes of ``path``; 0 when it is not there (a frame held past the last file)."""
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return 0
 
 
 def sweep(outputs):
@@ -217,7 +228,8 @@ def _finish(res, items, t_all, report_path, dash):
     return res
 
 
-def _loop(client_args, prog, todo, submit, label, items, flush, record=None, before=None):
+def _loop(client_args, prog, todo, submit, label, items, flush, record=None, before=None,
+          size=None):
     """Run ``todo`` on the cluster (none started when nothing is left to do); each finished
     item, after ``record(item)``, joins ``items`` and the run's JSON is rewritten.
     ``before(client, threads)`` runs first, on the same cluster (what every frame needs)."""
@@ -239,7 +251,7 @@ def _loop(client_args, prog, todo, submit, label, items, flush, record=None, bef
                 print(f"{prog}: error: {cli_errors.one_line(item['error'])}", file=sys.stderr)
             flush()
 
-        run_frames(client, lambda n: submit(n, threads), todo, prog, label, on_item)
+        run_frames(client, lambda n: submit(n, threads), todo, prog, label, on_item, size)
     return dash
 
 
@@ -282,7 +294,8 @@ def convert_sequence(pattern, frames, grid, lod, cache_dir, options, *, workers=
         write_json(report_path, {**res, "frames": sorted(items, key=lambda i: i["frame"]),
                                  "complete": False})
 
-    dash = _loop((workers, scheduler, cores), prog, todo, submit, "convert", items, flush)
+    dash = _loop((workers, scheduler, cores), prog, todo, submit, "convert", items, flush,
+                 size=lambda n: file_size(pat.path(n)))
     sweep(job.cache_file(pat.path(n)) for n in todo)
     res = _finish(res, items, t_all, report_path, dash)
     done = [i for i in items if "cache_bytes" in i]
@@ -344,11 +357,13 @@ def render_sequence(args) -> dict:
     known = {}  # every frame's figures (the colour range, the camera's box): read once, spread
 
     def read_figures(client, threads):
+        t0 = time.perf_counter()
         futures = client.map(cluster_tasks.frame_figures, [pat.path(n) for n in inside],
                              grid=grid, threads=threads, root=ROOT, retries=RETRIES, pure=False)
         for n, fut in zip(inside, futures):
             with contextlib.suppress(Exception):  # lost: the workers read that frame themselves
                 known[n] = fut.result()
+        res["seconds_figures"] = time.perf_counter() - t0
 
     def submit(f, threads):
         a = type(args)(**{**vars(args), "threads": threads or args.threads})
@@ -364,7 +379,8 @@ def render_sequence(args) -> dict:
             item.update(key=key, out_fingerprint=seq.fingerprint(item["out"]))
 
     dash = _loop((args.workers, args.scheduler, 0 if args.scheduler else args.threads), prog,
-                 todo, submit, "render", items, flush, record, read_figures)
+                 todo, submit, "render", items, flush, record, read_figures,
+                 lambda f: file_size(pat.path(f)))
     sweep(os.path.abspath(rs.out_path(args.out, f)) for f in todo)
     warnings = []
     for item in sorted(items, key=lambda i: i["frame"]):

@@ -156,12 +156,15 @@ def convert_frame(job: ConvertJob, frame: int, path: str, root=None) -> dict:
 
 def frame_figures(path: str, grid: str, threads=0, root=None) -> dict:
     """kernels.sequence.frame_figures of one frame of a sequence to render (its value figures
-    and box): the driver gives them all to the render tasks, so no worker reads every frame."""
+    and box): the driver gives them all to the render tasks, so no worker reads every frame.
+    Read with the kernels of the Blender session this worker's render tasks use (started here
+    once): the plain package would load, or compile, the reader a second time."""
     use_root(root)
-    from kernels import sequence as seq
+    from blender_session import kernels_module, start
 
     set_threads(threads)
-    return seq.frame_figures(path, [grid])
+    start()
+    return kernels_module("sequence").frame_figures(path, [grid])
 
 
 _PREPARED = {}  # this worker's Blender scene for the run it renders: {run key: prepared}
@@ -181,13 +184,14 @@ def render_frame(args, key: str, frame: int, out: str, root=None, known=None) ->
 
     t0, rss0 = time.perf_counter(), _peak_rss()
     set_threads(args.threads)
-    prepared = _PREPARED.get(key)
+    prepared, seconds_prepare = _PREPARED.get(key), None
     if prepared is None:
         _PREPARED.clear()  # one run's scene at a time: prepare() starts from an empty file
         try:
             prepared = _PREPARED[key] = render_sequence.prepare(args, known)
         except (cli_errors.InputError, cli_errors.UsageError) as err:  # the run's, not the frame's
             return {"frame": frame, "refusal": str(err)}
+        seconds_prepare = time.perf_counter() - t0
     os.makedirs(os.path.dirname(out), exist_ok=True)
     ext = os.path.splitext(out)[1]
     tmp = seq.temporary_name(out) + ext  # the extension picks the image format
@@ -199,6 +203,8 @@ def render_frame(args, key: str, frame: int, out: str, root=None, known=None) ->
             os.unlink(tmp)
     item.update(out=out, warnings=list(stats.get("warnings", ())),
                 value_range=stats.get("value_range"))
+    if seconds_prepare is not None:  # this worker's Blender start and scene (in "seconds")
+        item["seconds_prepare"] = seconds_prepare
     if stats.get("errors"):
         item["error"] = "; ".join(stats["errors"])
     return _stamp(item, t0, rss0)
