@@ -12,6 +12,7 @@ go to the per-user cache folder of kernels.cachedir, never into the source tree.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
 import sys
 import tempfile
@@ -66,13 +67,24 @@ def kernels_module(name: str):
     (numba caches a kernel under the module name it was imported as, so reading a file with the
     plain ``kernels`` beside the extension compiled the reader twice, ~7 s of a cold render),
     else the plain package (convert, which never starts Blender)."""
-    import importlib
-
     return importlib.import_module(f"{MODULE}.kernels.{name}" if "bpy" in _STARTED else f"kernels.{name}")
+
+
+def compile_ahead(modes, threads=0) -> list:
+    """On a cache without the render kernels of ``modes``: compile them now in a second process
+    (the add-on's background warm-up, started under the extension's name) while this one reads
+    the file and builds its LOD; the render then waits for that process (final_render's
+    wait_for_kernels) instead of compiling them too. Only where this process is given more
+    than one core (``threads``, 0: NUMBA_NUM_THREADS or all; a cluster worker has one).
+    Returns the jobs started. Call after start()."""
+    cores = threads or int(os.environ.get("NUMBA_NUM_THREADS") or 0) or os.cpu_count() or 1
+    if cores < 2:
+        return []
+    warmup = importlib.import_module(f"{MODULE}.kernels.warmup")
+    service = addon_module("gaussvdb_addon.engine.warmup_service")
+    return service.start(warmup.jobs_for(modes=tuple(modes)))
 
 
 def addon_module(name: str):
     """A submodule of the enabled extension, e.g. addon_module('gaussvdb_addon.io.importer')."""
-    import importlib
-
     return importlib.import_module(f"{MODULE}.{name}")

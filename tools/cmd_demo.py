@@ -77,9 +77,12 @@ def render_pngs(bpy, objs, args) -> list:
 
 def run(args) -> dict:
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from blender_session import addon_module, start
+    import cmd_render
+    from blender_session import addon_module, compile_ahead, start
 
     bpy = start()
+    if args.size is not None:  # the renders' kernels compile beside the import's (a cold cache)
+        compile_ahead([cmd_render.options().mode])
     importer = addon_module("gaussvdb_addon.io.importer")
     lod = addon_module("kernels.lod")
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -128,12 +128,13 @@ def options(**overrides):
 
 def render(args) -> dict:
     import cli_grids
-    from blender_session import addon_module, start
+    from blender_session import addon_module, compile_ahead, start
 
     from kernels.vdb import check_header
 
     check_header(args.file)  # a missing file or not a .vdb file: refused before Blender starts
     bpy = start()  # then the grid checks read with the extension's kernels (compiled once)
+    compile_ahead([args.mode], args.threads)
     grid = cli_grids.choose_grid(args.file, args.grid, args.vector_magnitude)
     if args.color_grid:
         cli_grids.check_color_grid(args.file, args.color_grid, args.vector_magnitude)

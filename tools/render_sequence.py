@@ -79,10 +79,11 @@ def prepare(args, known=None) -> dict:
     rendering any one of its frames needs (a cluster worker prepares it once for its frames).
     ``known``: {frame: kernels.sequence.frame_figures} of the frames, read once by the cluster's
     tasks rather than again by every worker."""
-    from blender_session import addon_module, start
+    from blender_session import addon_module, compile_ahead, start
 
     pat, frames, inside = frames_of(args)
     bpy = start()  # first: the file checks read with the extension's kernels (one compile)
+    compile_ahead([args.mode], args.threads)
     grid = choose_grid(pat, inside, args)
     importer = addon_module("gaussvdb_addon.io.importer")
     sequence_import = addon_module("gaussvdb_addon.io.sequence_import")

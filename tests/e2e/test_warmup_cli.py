@@ -67,3 +67,24 @@ def test_warmup_then_a_later_process_compiles_nothing(tmp_path):
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["module"] == "bl_ext.user_default.gaussvdb.kernels.warmup"
     assert got["hits"] > 0 and got["misses"] == 0, got
+
+
+def test_render_on_an_empty_cache_compiles_its_render_kernels_in_a_second_process(tmp_path):
+    """`./gaussvdb render` on an empty cache: the render mode's kernels compile in the warm-up
+    process it starts beside the import (its status and marker say so), and the render waits
+    for them rather than compiling them again (its own compile seconds stay near zero; a
+    reference frame compiles ~20 s here)."""
+    cache = tmp_path / "kernels"
+    out = tmp_path / "x.png"
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "cli.py"), "render",
+                        os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb"),
+                        "--mode", "reference", "--size", "32x24", "--threads", "2",
+                        "--out", str(out), "--json"],
+                       capture_output=True, text=True, timeout=900, env=_env(cache))
+    assert r.returncode == 0, r.stderr[-3000:]
+    stats = json.loads(r.stdout.strip().splitlines()[-1])
+    warm = cache / "bl_ext.user_default.gaussvdb" / "warmup"
+    status = json.loads((warm / "status.json").read_text())
+    assert status["jobs"] == ["render:reference"] and status["state"] == "done", status
+    assert any(p.name == "render-reference.done" for p in warm.rglob("*.done"))
+    assert stats["seconds_compile"] < 2.0 and out.is_file()
