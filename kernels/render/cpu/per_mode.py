@@ -17,13 +17,31 @@ from numba.extending import overload
 
 from ...mode_names import Mode
 
+# A band kernel's constant is its mode, plus this bit for a reference frame of one fog volume in
+# Emission with a linear transfer function (launch.kernel_code): such a frame compiles only the
+# one-fog sampler (cpu.fog), any other reference frame only the general one (cpu.pieces).
+ONE_FOG = 1 << 8
+MODE_BITS = ONE_FOG - 1
 
-def literal_mode(mode_type, where: str) -> Mode:
-    """The Mode a numba literal int type names; a TypingError when the mode is not a constant."""
+
+def _literal(mode_type, where: str) -> int:
     if not isinstance(mode_type, types.IntegerLiteral):
         raise TypingError(f"{where}: the render mode must be a compile-time constant "
                           "(draw through cpu.launch.mode_entry)")
-    return Mode(mode_type.literal_value)
+    return mode_type.literal_value
+
+
+def literal_mode(mode_type, where: str) -> Mode:
+    """The Mode a numba literal int type names; a TypingError when the mode is not a constant."""
+    return Mode(_literal(mode_type, where) & MODE_BITS)
+
+
+def _register(stub, pick):
+    def typer(*args):
+        return pick(args[0])
+
+    typer.__signature__ = inspect.signature(stub)  # numba checks implementations against it
+    overload(stub, inline="always", prefer_literal=True)(typer)
 
 
 def per_mode(stub):
@@ -31,10 +49,15 @@ def per_mode(stub):
     whose first argument is the mode) from jitted code run that implementation, inlined. The
     implementation takes the stub's arguments."""
     def register(choose):
-        def typer(*args):
-            return choose(literal_mode(args[0], stub.__name__))
+        _register(stub, lambda t: choose(literal_mode(t, stub.__name__)))
+        return choose
+    return register
 
-        typer.__signature__ = inspect.signature(stub)  # numba checks implementations against it
-        overload(stub, inline="always", prefer_literal=True)(typer)
+
+def per_kernel(stub):
+    """per_mode whose ``choose(mode, one_fog: bool)`` also sees the ONE_FOG bit."""
+    def register(choose):
+        _register(stub, lambda t: choose(literal_mode(t, stub.__name__),
+                                         bool(_literal(t, stub.__name__) & ONE_FOG)))
         return choose
     return register

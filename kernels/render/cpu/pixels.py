@@ -36,7 +36,6 @@ from ..inputs.layout import (
     NFS,
     NQS,
     NST,
-    PAR_LOG,
     PCUR,
     PDEPTH,
     RAD,
@@ -52,14 +51,12 @@ from ..inputs.layout import (
     TR,
     VSUM,
     VWT,
-    Kind,
-    Shading,
 )
 from ..inputs.packing import Hits, Scratch
 from .chords import OVERFLOW
 from .fog import FOG_CHUNK, reference_fog
 from .gauss import NB, trace_gauss, trace_tiles
-from .per_mode import per_mode
+from .per_mode import MODE_BITS, per_kernel, per_mode
 from .pieces import lut_rows, paper_piece, reference_piece  # noqa: F401  (lut_rows: for device.py)
 from .surface import mixture_normal, shade_hit
 from .vecmath import INF, _hot, _jit, composite, erf_diff, erf_span, line_integral
@@ -105,30 +102,6 @@ def merged_pieces(n, iv_ta, iv_tb, srt, bnd):
     return 2 * n - 1
 
 
-def one_fog(mode, st, n, objs, accel, xfer, scr):
-    """Reference mode's common case, one fog volume with Emission shading and a linear transfer
-    function, drawn by the one-fog sampler (cpu.fog); false when the ray is not that case."""
-
-
-@per_mode(one_fog)
-def _one_fog(mode):
-    if modes.spec(mode).draws == modes.VOXELS:
-        def voxels(mode, st, n, objs, accel, xfer, scr):
-            tf = objs.tf[0]
-            if (accel.walk_obj.shape[0] == 1 and objs.kind[0] == Kind.FOG and objs.ctf[0] < 0
-                    and objs.lit[0] == Shading.EMISSION and xfer.par[tf, PAR_LOG] < 0.5):
-                reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
-                              accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear,
-                              scr.fog)
-                return True
-            return False
-        return voxels
-
-    def gaussians(mode, st, n, objs, accel, xfer, scr):
-        return False
-    return gaussians
-
-
 def piece(mode, st, p0, p1, ncov, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     """One piece [p0, p1) of a ray over its ncov covering leaves (scr.cov_obj, scr.cov_cell):
     sampled from the voxels (reference_piece) or the Gaussians (paper_piece); true when the ray
@@ -159,8 +132,6 @@ def _piece(mode):
 @njit(**_hot)
 def trace_pieces(mode, st, n, gauss, objs, accel, xfer, scr, k2, nsteps, maxd):
     """paper / reference: piece by piece over the covering leaves."""
-    if one_fog(mode, st, n, objs, accel, xfer, scr):
-        return
     one = accel.walk_obj.shape[0] == 1  # one object's leaves: the intervals are the pieces
     iv_ta, iv_tb, srt, act_iv = scr.iv_ta, scr.iv_tb, scr.srt, scr.act_iv
     cov_obj, cov_cell = scr.cov_obj, scr.cov_cell
@@ -219,8 +190,18 @@ def trace_ray(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, h
     hits needs more rows."""
 
 
-@per_mode(trace_ray)
-def _trace_ray(mode):
+@per_kernel(trace_ray)
+def _trace_ray(mode, one_fog):
+    if one_fog:  # one fog volume in Emission, a linear transfer function (launch.kernel_code)
+        def fog(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2, nsteps, maxd,
+                t_near, t_far, tau_max):
+            tf = objs.tf[0]
+            reference_fog(st, n, scr.iv_ta, scr.iv_tb, scr.iv_cell, scr.ro, scr.rd, objs.step[0],
+                          accel.bricks, accel.cell_xyz, xfer.lut[tf], xfer.par[tf], accel.clear,
+                          scr.fog)
+            return 0
+        return fog
+
     if modes.spec(mode).pieces:
         def pieces(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2, nsteps, maxd,
                    t_near, t_far, tau_max):
@@ -287,8 +268,8 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
     nsteps = int(settings[SET_PAPER_STEPS])
     maxd = settings[SET_PAPER_DEPTH]
     t_start = accel.t_start
-    tiled = mode in SCREEN_TILE_MODES and t_start.shape[0] > 1
-    culled = mode in LEAF_TILE_MODES and t_start.shape[0] > 1  # leaves per tile (leaf_tiles)
+    tiled = (mode & MODE_BITS) in SCREEN_TILE_MODES and t_start.shape[0] > 1
+    culled = (mode & MODE_BITS) in LEAF_TILE_MODES and t_start.shape[0] > 1  # leaves per tile
     ntx = (W + TILE - 1) // TILE
     w0 = min(c1, (c0 // TILE + 1) * TILE) - c0  # the first tile column's part of [c0, c1)
     st, ro, rd, rclip, sprev = scr.st, scr.ro, scr.rd, scr.rclip, scr.sprev

@@ -216,7 +216,9 @@ class CPUDevice(Device):
         gray = TransferFunction.from_colormap("grayscale", 0.0, 1.0)
         for mode in modes or [m.name.lower() for m in table.SPECS]:
             voxels = table.spec(mode).draws == table.VOXELS and table.spec(mode).drawn_as is None
-            tiny.render(RenderScene(grid_objs if voxels else objs, mode=mode), cam, gray)
+            # voxels: one fog volume, then two objects (launch.kernel_code: two band kernels)
+            for scene_objs in ((grid_objs, grid_objs * 2) if voxels else (objs,)):
+                tiny.render(RenderScene(scene_objs, mode=mode), cam, gray)
         return time.perf_counter() - t0
 
     def _build_frame(self, spec, scene, camera, prep, lists_elsewhere):
@@ -300,10 +302,11 @@ class CPUDevice(Device):
         # cancel leaves undrawn stay transparent
         rgba, depth, value = bands.blank(nr, c1 - c0)
         segs = np.zeros(nr)
+        code = self._k.kernel_code(frame.mode, frame.objects, frame.accel, frame.transfer)
         with self._thread_count(scene) as threads:
 
             def draw(a, b):
-                self._k.render_rows(int(frame.mode), frame.cam, r0 + a, r0 + b, c0, c1,
+                self._k.render_rows(code, frame.cam, r0 + a, r0 + b, c0, c1,
                                     frame.gauss, frame.objects, frame.accel, frame.transfer,
                                     packing.Output(rgba[a:b], depth[a:b], value[a:b], segs[a:b]),
                                     threads)
