@@ -1,9 +1,10 @@
 """A frame compiles the kernels of its own mode only (cpu.per_mode): a reference frame runs no
 Gaussian kernel and a particles frame no voxel or field kernel, so a first frame compiles a part
 of the renderer, not all of it; a reference frame of one fog volume only the one-fog sampler, one
-of two volumes only the general one (cpu.launch.kernel_code). Each case runs in a fresh process on an empty kernel cache (a
-kernel loaded from the cache brings its callees' code without their dispatchers, so only a
-compile lists them all), and the mode's band kernel draws the same bits on 1 and 2 threads."""
+of two volumes only the general one (cpu.launch.kernel_code). Each case runs in a fresh process
+on an empty kernel cache (a kernel loaded from the cache brings its callees' code without their
+dispatchers, so only a compile lists them all), and the mode's band kernel draws the same bits on
+1 and 2 threads."""
 import json
 import os
 import subprocess
