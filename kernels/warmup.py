@@ -80,14 +80,30 @@ def _job_error():
         pipeline.convert_lod(grid, "low", compute_error=True)
 
 
-def _job_render(mode):
+GENERAL = ("reference",)  # the modes whose scenes of several objects have kernels of their own
+
+
+def _job_render(mode, objects=1):
     def job():
         from .render import CPUDevice
 
-        device = CPUDevice()
-        device.load_kernels(modes=(mode,))
+        CPUDevice().load_kernels(modes=(mode,), objects=(objects,))
     job.__doc__ = f"The CPU device's kernels of the {mode_names.LABELS[mode]} render mode."
+    if objects > 1:
+        job.__doc__ += " Its general voxel sampler (several objects, surfaces, lights, ...)."
     return job
+
+
+def _render_jobs(modes) -> dict:
+    """render:<mode> per mode; reference also render:reference:general (a frame of one plain
+    fog volume and any other compile different band kernels: cpu.launch.kernel_code)."""
+    jobs = {}
+    for m in modes:
+        jobs[f"render:{m}"] = _job_render(m)
+        if m in GENERAL:
+            jobs[f"render:{m}:general"] = _job_render(m, objects=2)
+    return jobs
+
 
 
 # ordered: what a first session needs first (an import with the dialog's defaults: reading, the
@@ -95,9 +111,9 @@ def _job_render(mode):
 JOBS = {"reader": _job_reader,
         f"lod:{lod_names.DEFAULT}": _job_lod(lod_names.DEFAULT),
         "error": _job_error,
-        f"render:{mode_names.DEFAULT}": _job_render(mode_names.DEFAULT),
+        **_render_jobs([mode_names.DEFAULT]),
         **{f"lod:{n}": _job_lod(n) for n in lod_names.PRESETS if n != lod_names.DEFAULT},
-        **{f"render:{m}": _job_render(m) for m in mode_names.MENU_ORDER if m != mode_names.DEFAULT}}
+        **_render_jobs([m for m in mode_names.MENU_ORDER if m != mode_names.DEFAULT])}
 NAMES = tuple(JOBS)
 
 
@@ -113,9 +129,10 @@ def check_names(names) -> list:
     return list(dict.fromkeys(names))
 
 
-def jobs_for(lods=(), error=False, modes=()) -> list:
+def jobs_for(lods=(), error=False, modes=(), general=True) -> list:
     """The jobs a need maps to: an import of ``lods`` (with the field error when ``error``), a
-    render in each of ``modes``. In the order they are needed (the LODs coarse first)."""
+    render in each of ``modes`` (``general``: of any scene; else of one plain fog volume, the
+    only scene some renders draw). In the order they are needed (the LODs coarse first)."""
     if isinstance(lods, str):
         lods = (lods,)
     if isinstance(modes, str):
@@ -127,7 +144,8 @@ def jobs_for(lods=(), error=False, modes=()) -> list:
         names += [f"lod:{n}" for n in sorted(lods, key=lambda n: order.get(n, len(order)))]
         if error:
             names.append("error")
-    names += [f"render:{m}" for m in modes]
+    for m in modes:
+        names += [f"render:{m}"] + ([f"render:{m}:general"] if general and m in GENERAL else [])
     return check_names(names)
 
 

@@ -70,19 +70,21 @@ def kernels_module(name: str):
     return importlib.import_module(f"{MODULE}.kernels.{name}" if "bpy" in _STARTED else f"kernels.{name}")
 
 
-def compile_ahead(modes, threads=0) -> list:
+def compile_ahead(modes, threads=0, general=True) -> list:
     """On a cache without the render kernels of ``modes``: compile them now in a second process
     (the add-on's background warm-up, started under the extension's name) while this one reads
     the file and builds its LOD; the render then waits for that process (final_render's
     wait_for_kernels) instead of compiling them too. Only where this process is given more
     than one core (``threads``, 0: NUMBA_NUM_THREADS or all; a cluster worker has one).
+    ``general``: the render's scene may need more than a plain fog volume's kernels (warmup.
+    jobs_for; those it needs and this process does not compile ahead compile in the render).
     Returns the jobs started. Call after start()."""
     cores = threads or int(os.environ.get("NUMBA_NUM_THREADS") or 0) or os.cpu_count() or 1
     if cores < 2:
         return []
     warmup = importlib.import_module(f"{MODULE}.kernels.warmup")
     service = addon_module("gaussvdb_addon.engine.warmup_service")
-    return service.start(warmup.jobs_for(modes=tuple(modes)))
+    return service.start(warmup.jobs_for(modes=tuple(modes), general=general))
 
 
 def addon_module(name: str):

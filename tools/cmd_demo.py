@@ -82,7 +82,7 @@ def run(args) -> dict:
 
     bpy = start()
     if args.size is not None:  # the renders' kernels compile beside the import's (a cold cache)
-        compile_ahead([cmd_render.options().mode])
+        compile_ahead([cmd_render.options().mode], general=False)
     importer = addon_module("gaussvdb_addon.io.importer")
     lod = addon_module("kernels.lod")
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -32,6 +32,7 @@ import cluster  # noqa: E402
 import render_sequence  # noqa: E402
 from cli_errors import InputError, UsageError  # noqa: E402
 from render_setup import (  # noqa: E402, F401
+    beyond_plain_fog,
     build_scene,
     check_format,
     convert_options,
@@ -134,7 +135,7 @@ def render(args) -> dict:
 
     check_header(args.file)  # a missing file or not a .vdb file: refused before Blender starts
     bpy = start()  # then the grid checks read with the extension's kernels (compiled once)
-    compile_ahead([args.mode], args.threads)
+    compile_ahead([args.mode], args.threads, beyond_plain_fog(args))
     grid = cli_grids.choose_grid(args.file, args.grid, args.vector_magnitude)
     if args.color_grid:
         cli_grids.check_color_grid(args.file, args.color_grid, args.vector_magnitude)

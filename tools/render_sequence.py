@@ -17,7 +17,14 @@ import time
 
 import cli_errors
 from cli_errors import InputError, UsageError
-from render_setup import build_scene, check_format, convert_options, index_box_world, quiet_render
+from render_setup import (
+    beyond_plain_fog,
+    build_scene,
+    check_format,
+    convert_options,
+    index_box_world,
+    quiet_render,
+)
 
 
 def frames_of(args):
@@ -83,7 +90,7 @@ def prepare(args, known=None) -> dict:
 
     pat, frames, inside = frames_of(args)
     bpy = start()  # first: the file checks read with the extension's kernels (one compile)
-    compile_ahead([args.mode], args.threads)
+    compile_ahead([args.mode], args.threads, beyond_plain_fog(args))
     grid = choose_grid(pat, inside, args)
     importer = addon_module("gaussvdb_addon.io.importer")
     sequence_import = addon_module("gaussvdb_addon.io.sequence_import")

@@ -31,6 +31,14 @@ def convert_options(args, grid):
                           tolerance=lod_names.DEFAULT_TOLERANCE if tolerance is None else tolerance)
 
 
+def beyond_plain_fog(args) -> bool:
+    """Whether the options ask more of a reference frame than one fog volume in Emission with a
+    linear transfer function (a log scale, lit shading, a colour grid: the general voxel
+    sampler, blender_session.compile_ahead). A level-set file is known only once read."""
+    return bool(getattr(args, "log_scale", False) or getattr(args, "shading", "") == "lit"
+                or getattr(args, "color_grid", None))
+
+
 def world_box(obj):
     import numpy as np
 

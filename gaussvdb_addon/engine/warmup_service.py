@@ -59,12 +59,13 @@ def missing(jobs=None) -> list:
 def needed(jobs) -> list:
     """The jobs an action waits for before it runs: in the UI those not compiled yet (it starts
     or joins the warm-up for them); in background mode (it compiles in its own process) only
-    those a warm-up started in this process is compiling now (joined, never started)."""
+    those a warm-up started in this process is compiling now (joined, never started; the
+    others compile in this process)."""
     todo = missing(jobs)
     if not todo or not background():
         return todo
     with _LOCK:
-        return todo if running() and set(todo) <= set(_state["jobs"]) else []
+        return [j for j in todo if j in _state["jobs"]] if running() else []
 
 
 def compile_here(jobs=None) -> dict:

@@ -16,7 +16,9 @@ def test_the_table_has_a_job_per_lod_and_mode_in_order():
     assert warmup.NAMES[0] == "reader"
     assert warmup.NAMES[1] == f"lod:{lod_names.DEFAULT}"
     assert {f"lod:{n}" for n in lod_names.PRESETS} | {"error"} | \
-        {f"render:{m}" for m in mode_names.NAMES} | {"reader"} == set(warmup.NAMES)
+        {f"render:{m}" for m in mode_names.NAMES} | {"reader", "render:reference:general"} == \
+        set(warmup.NAMES)
+    assert warmup.NAMES.index("render:reference:general") == warmup.NAMES.index("render:reference") + 1
     # a first session's needs first: an import with the dialog's defaults, an F12 in the default mode
     assert warmup.NAMES[2:4] == ("error", f"render:{mode_names.DEFAULT}")
 
@@ -24,7 +26,8 @@ def test_the_table_has_a_job_per_lod_and_mode_in_order():
 def test_jobs_for_a_need():
     assert warmup.jobs_for(lods=("medium",)) == ["reader", "lod:medium"]
     assert warmup.jobs_for(lods=("high", "low"), error=True) == ["reader", "lod:low", "lod:high", "error"]
-    assert warmup.jobs_for(modes=("reference",)) == ["render:reference"]
+    assert warmup.jobs_for(modes=("reference",)) == ["render:reference", "render:reference:general"]
+    assert warmup.jobs_for(modes=("reference",), general=False) == ["render:reference"]
     assert warmup.jobs_for(modes="splat") == ["render:splat"]
     assert warmup.jobs_for() == []
     with pytest.raises(ValueError, match="unknown warm-up job 'lod:nope'; choose from reader"):

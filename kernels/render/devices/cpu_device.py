@@ -193,12 +193,13 @@ class CPUDevice(Device):
     def end_frame(self):
         self._frame = None
 
-    def load_kernels(self, modes=None, *, scene=None, camera=None, tf=None):
+    def load_kernels(self, modes=None, *, scene=None, camera=None, tf=None, objects=(1, 2)):
         """Device.load_kernels: a frame of ``scene`` (with ``camera``, ``tf``), drawn at 8x8 on this
         device (its sync is kept for the frame that follows), or, without a scene, each of
         ``modes`` (names; None: every mode) on small synthetic objects. Each mode compiles only its
         own kernels (cpu.per_mode); a scene's frame also those of the lights, clipping, colour
-        grids and surfaces it uses."""
+        grids and surfaces it uses. ``objects``: the voxel modes' synthetic scenes, of one fog
+        volume and of two (each has its own band kernel: cpu.launch.kernel_code)."""
         t0 = time.perf_counter()
         if scene is not None:
             key = (scene.mode, scene.features())
@@ -216,8 +217,7 @@ class CPUDevice(Device):
         gray = TransferFunction.from_colormap("grayscale", 0.0, 1.0)
         for mode in modes or [m.name.lower() for m in table.SPECS]:
             voxels = table.spec(mode).draws == table.VOXELS and table.spec(mode).drawn_as is None
-            # voxels: one fog volume, then two objects (launch.kernel_code: two band kernels)
-            for scene_objs in ((grid_objs, grid_objs * 2) if voxels else (objs,)):
+            for scene_objs in ([grid_objs * k for k in objects] if voxels else (objs,)):
                 tiny.render(RenderScene(scene_objs, mode=mode), cam, gray)
         return time.perf_counter() - t0
 
