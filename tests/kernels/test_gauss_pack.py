@@ -92,3 +92,21 @@ def test_test_records_are_centres_and_inverse_sigmas(mixed_set):
     want = np.zeros((acc.g_mu.shape[0], 8))
     want[:, 0:3], want[:, 3:6] = acc.g_mu, acc.g_inv
     assert np.array_equal(rec, want) and rec.flags.c_contiguous
+
+
+@pytest.mark.parametrize("chunk", [1 << 20, 7])
+def test_bounds_alone_equal_the_packers_bit_for_bit(mixed_set, chunk):
+    """gaussian_bounds (numpy, no kernel: a reference frame's sync) gives the packer's bounds to
+    the bit, over group runs of any length (chunk 7 splits the set into hundreds of runs)."""
+    from kernels.render.inputs import gauss_pack
+
+    whole = accel.drawn_gaussians(mixed_set, 3.0)["bounds"]
+    start = np.asarray(mixed_set.group_start, np.int64)
+    alone = gauss_pack._bounds(start, np.asarray(mixed_set.group_origins, np.int64).reshape(-1, 3),
+                               np.asarray(mixed_set.offsets), np.asarray(mixed_set.sigmas),
+                               np.asarray(mixed_set.amplitudes), 3.0, chunk=chunk)
+    for got, want in zip(alone, whole):
+        for x, y in zip(got, want):
+            assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
+    assert [a.tobytes() for b in accel.gaussian_bounds(mixed_set, 3.0) for a in b] == \
+        [a.tobytes() for b in whole for a in b]

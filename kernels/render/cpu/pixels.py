@@ -239,6 +239,23 @@ def _gauss_normal(mode):
     return others
 
 
+def surface_shade(mode, st, w2i, lights, settings, owx, owy, owz, dwx, dwy, dwz):
+    """A surface hit's shading (surface.shade_hit); nothing in a one-fog frame, which has none."""
+
+
+@per_kernel(surface_shade)
+def _surface_shade(mode, one_fog):
+    if one_fog:
+        def none(mode, st, w2i, lights, settings, owx, owy, owz, dwx, dwy, dwz):
+            pass
+        return none
+
+    def shade(mode, st, w2i, lights, settings, owx, owy, owz, dwx, dwy, dwz):
+        if st[HIT] > 0.0:
+            shade_hit(st, w2i[int(st[HIT_OB])], lights, settings, owx, owy, owz, dwx, dwy, dwz)
+    return shade
+
+
 @njit(**_jit)
 def ray_scratch(cap):
     """Per-ray hit arrays for trace_gauss, room for cap hits (packing.Hits)."""
@@ -369,8 +386,7 @@ def render_pixels(p0, jr0, j0, nr, c0, c1, mode, cam, gauss, objs, accel, xfer, 
                                nsteps, maxd, t_near, t_far, tau_max) == OVERFLOW:
             return p
         gauss_normal(mode, st, ro, rd, accel, gauss, objs)
-        if st[HIT] > 0.0:
-            shade_hit(st, w2i[int(st[HIT_OB])], xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
+        surface_shade(mode, st, w2i, xfer.lights, settings, owx, owy, owz, dwx, dwy, dwz)
         Tr = st[TR]
         io = i - c0
         out.rgba[jr, io, 0] = st[RAD] + Tr * bgr * bga

@@ -139,11 +139,36 @@ def _test_records(g0, g1, mu, inv, rec):
         rec[g, REC_LB] = 0.0
 
 
+def _bounds(start, origins, offsets, sigmas, amps, k, chunk=1 << 20):
+    """drawn's bounds in numpy, group runs of about ``chunk`` Gaussians at a time: the same
+    tests, sums and products in float64 as _gaussian and _fill (so the same numbers), without
+    compiling _fill for a frame that needs only the box (a reference frame's sync)."""
+    lo_c, hi_c = np.full(3, np.inf), np.full(3, -np.inf)
+    lo_s, hi_s = lo_c.copy(), hi_c.copy()
+    ng = start.shape[0] - 1
+    g = 0
+    while g < ng:
+        g2 = min(ng, max(g + 1, int(np.searchsorted(start, start[g] + chunk, side="right")) - 1))
+        i0, i1 = int(start[g]), int(start[g2])
+        gid = np.repeat(np.arange(g, g2), np.diff(start[g:g2 + 1]))
+        mu = origins[gid].astype(np.float64) + offsets[i0:i1].astype(np.float64)
+        sg = sigmas[i0:i1].astype(np.float64)
+        w = amps[i0:i1].astype(np.float64)
+        ok = (sg > 0.0).all(1) & np.isfinite(mu).all(1) & np.isfinite(w) & (w != 0.0)
+        mu, r = mu[ok], k * sg[ok]
+        lo_c = np.minimum(lo_c, mu.min(0, initial=np.inf))
+        hi_c = np.maximum(hi_c, mu.max(0, initial=-np.inf))
+        lo_s = np.minimum(lo_s, (mu - r).min(0, initial=np.inf))
+        hi_s = np.maximum(hi_s, (mu + r).max(0, initial=-np.inf))
+        g = g2
+    return None if not np.isfinite(lo_c).all() else ((lo_c, hi_c), (lo_s, hi_s))
+
+
 def drawn(gs, k, max_level, level_cells, level_span, leaf, sigmas=False, arrays=True):
     """The drawn Gaussians of set gs (None: none) as a dict of arrays (see module doc): mu, inv,
     val, cval (its second grid: a level set's distances, else its colour values; NaN without),
     amp, lev, clo, chi, sig (with sigmas, else empty), and bounds ((centre lo, hi), (support lo,
-    hi)) or None when none is drawn. Without arrays, only bounds (the arrays empty)."""
+    hi)) or None when none is drawn. Without arrays, {"bounds": ...} alone."""
     start = np.asarray(gs.group_start, np.int64) if gs is not None else np.zeros(1, np.int64)
     m = int(start[-1]) if start.size else 0
     if m == 0:
@@ -157,13 +182,12 @@ def drawn(gs, k, max_level, level_cells, level_span, leaf, sigmas=False, arrays=
     second = "distances" if getattr(gs, "grid_class", "") == "level_set" else "color_values"
     cvalues = getattr(gs, second, None) if m else None
     cvalues = np.zeros(0) if cvalues is None else np.asarray(cvalues)[:m]
-    if arrays:
-        cnt = np.zeros(start.shape[0] - 1, np.int64)
-        parallel_for(_counts, cnt.shape[0], start, origins, offsets, sig_in, amps, cnt)
-        first = np.zeros(cnt.shape[0] + 1, np.int64)
-        np.cumsum(cnt, out=first[1:])
-    else:
-        first = np.zeros(start.shape[0], np.int64)
+    if not arrays:
+        return {"bounds": _bounds(start, origins, offsets, sig_in, amps, float(k))}
+    cnt = np.zeros(start.shape[0] - 1, np.int64)
+    parallel_for(_counts, cnt.shape[0], start, origins, offsets, sig_in, amps, cnt)
+    first = np.zeros(cnt.shape[0] + 1, np.int64)
+    np.cumsum(cnt, out=first[1:])
     n = int(first[-1])
     out = dict(mu=np.empty((n, 3)), inv=np.empty((n, 3)), val=np.empty(n), cval=np.empty(n),
                amp=np.empty(n), lev=np.empty(n, np.int64), clo=np.empty((n, 3), np.int64),
