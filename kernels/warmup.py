@@ -80,28 +80,30 @@ def _job_error():
         pipeline.convert_lod(grid, "low", compute_error=True)
 
 
-GENERAL = ("reference",)  # the modes whose scenes of several objects have kernels of their own
+# the modes whose plain scenes (reference: one fog volume; particles: no lights, no surfaces)
+# compile band kernels of their own (cpu.launch.kernel_code): render:<mode> warms those, and
+# render:<mode>:general the others
+GENERAL = ("reference", "particles")
 
 
-def _job_render(mode, objects=1):
+def _job_render(mode, variant="plain"):
     def job():
         from .render import CPUDevice
 
-        CPUDevice().load_kernels(modes=(mode,), objects=(objects,))
+        CPUDevice().load_kernels(modes=(mode,), variants=(variant,))
     job.__doc__ = f"The CPU device's kernels of the {mode_names.LABELS[mode]} render mode."
-    if objects > 1:
-        job.__doc__ += " Its general voxel sampler (several objects, surfaces, lights, ...)."
+    if variant == "general":
+        job.__doc__ += " Those of its scenes beyond the plain ones (lights, surfaces, ...)."
     return job
 
 
 def _render_jobs(modes) -> dict:
-    """render:<mode> per mode; reference also render:reference:general (a frame of one plain
-    fog volume and any other compile different band kernels: cpu.launch.kernel_code)."""
+    """render:<mode> per mode; for GENERAL's, render:<mode>:general after it."""
     jobs = {}
     for m in modes:
         jobs[f"render:{m}"] = _job_render(m)
         if m in GENERAL:
-            jobs[f"render:{m}:general"] = _job_render(m, objects=2)
+            jobs[f"render:{m}:general"] = _job_render(m, "general")
     return jobs
 
 

@@ -90,14 +90,14 @@ from .chords import (
     widen,
 )
 from .lit import lit_member, shade_sample
-from .per_mode import per_mode
+from .per_mode import per_kernel, per_mode
 from .surface import field_crossing, mixture_hit
 from .vecmath import INF, _hot, add_sample, composite_sample, erf_fast, recolor, sample_color
 
 
 @njit(**_hot)
-def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_col, g_val, tau_max,
-                    gauss, objs, xfer, scr):
+def sweep_particles(mode, horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_col, g_val,
+                    tau_max, gauss, objs, xfer, scr):
     """Particles: consume the entries before horizon, and close the cluster when it ends before
     it (see module doc). Returns 1 once the ray is opaque (early termination). Lit volumes'
     members are shaded as they enter (lit_member)."""
@@ -137,8 +137,7 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
         H[h, CR] = g_col[g, 0]
         H[h, CG] = g_col[g, 1]
         H[h, CB] = g_col[g, 2]
-        if objs.lit[gauss.obj[g]] != Shading.EMISSION:
-            lit_member(H, h, g, gauss, objs, xfer, scr)
+        shade_member(mode, H, h, g, gauss, objs, xfer, scr)
         v = g_val[g]
         H[h, VAL] = v if v == v else 0.0
         H[h, VW] = 1.0 if v == v else 0.0
@@ -157,6 +156,23 @@ def sweep_particles(horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb, g_co
     qs[QH], qs[NM] = q0, nm
     fs[IA], fs[LAST], fs[RHO], fs[CEND] = a, last_t, rho, cend
     return done
+
+
+def shade_member(mode, H, h, g, gauss, objs, xfer, scr):
+    """A new member's shading where its volume is lit (lit_member); nothing in a plain frame."""
+
+
+@per_kernel(shade_member)
+def _shade_member(mode, variant):
+    if variant.plain:
+        def none(mode, H, h, g, gauss, objs, xfer, scr):
+            pass
+        return none
+
+    def shade(mode, H, h, g, gauss, objs, xfer, scr):
+        if objs.lit[gauss.obj[g]] != Shading.EMISSION:
+            lit_member(H, h, g, gauss, objs, xfer, scr)
+    return shade
 
 
 @njit(**_hot, inline="always")
@@ -351,9 +367,9 @@ def _sweep(mode):
         return field
 
     def particles(mode, horizon, st, gauss, objs, xfer, scr, hits, tau_max):
-        return sweep_particles(horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t, hits.ev_h,
-                               hits.mem, hits.act, scr.cb, gauss.col, gauss.val, tau_max, gauss, objs,
-                               xfer, scr)
+        return sweep_particles(mode, horizon, st, scr.qs, scr.fs, hits.rec, hits.hid, hits.ev_t,
+                               hits.ev_h, hits.mem, hits.act, scr.cb, gauss.col, gauss.val, tau_max,
+                               gauss, objs, xfer, scr)
     return particles
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from ...jit import njit, run_on_threads
 from ..inputs.layout import PAR_LOG, TILE, Kind, Shading
 from ..scene.objects import Mode
-from .per_mode import MODE_BITS, ONE_FOG
+from .per_mode import MODE_BITS, ONE_FOG, PLAIN
 from .pixels import render_band
 from .vecmath import _jit
 
@@ -34,13 +34,17 @@ _ENTRIES = {}  # kernel code -> its band kernel (made on first use; compiled, or
 def kernel_code(mode, objs, accel, xfer) -> int:
     """The band kernel a frame draws with: its mode (Mode or its int), with per_mode.ONE_FOG for
     a reference frame of one fog volume in Emission, not coloured by a second grid, with a linear
-    transfer function: the one-fog sampler (cpu.fog) draws all of it, and the general piece
-    sampler is not compiled. (objs, accel, xfer: the frame's packed Objects, Accel, Transfer.)"""
+    transfer function (the one-fog sampler, cpu.fog, draws all of it; the general piece sampler is
+    not compiled), per_mode.PLAIN for a particles frame without lit volumes or surfaces (no
+    shading code compiled). (objs, accel, xfer: the frame's packed Objects, Accel, Transfer.)"""
     mode = Mode(int(mode))
     if (mode == Mode.REFERENCE and accel.walk_obj.shape[0] == 1 and objs.kind[0] == Kind.FOG
             and objs.ctf[0] < 0 and objs.lit[0] == Shading.EMISSION
             and xfer.par[objs.tf[0], PAR_LOG] < 0.5):
         return int(mode) | ONE_FOG
+    if (mode == Mode.PARTICLES and (objs.lit == Shading.EMISSION).all()
+            and (objs.kind != Kind.SURFACE).all()):
+        return int(mode) | PLAIN
     return int(mode)
 
 

@@ -10,6 +10,7 @@ about a minute on a first run).
 from __future__ import annotations
 
 import inspect
+from dataclasses import dataclass
 
 from numba.core import types
 from numba.core.errors import TypingError
@@ -17,11 +18,19 @@ from numba.extending import overload
 
 from ...mode_names import Mode
 
-# A band kernel's constant is its mode, plus this bit for a reference frame of one fog volume in
-# Emission with a linear transfer function (launch.kernel_code): such a frame compiles only the
-# one-fog sampler (cpu.fog), any other reference frame only the general one (cpu.pieces).
-ONE_FOG = 1 << 8
+# A band kernel's constant is its mode plus bits for what its scenes leave out
+# (launch.kernel_code), so such a frame compiles none of that code:
+ONE_FOG = 1 << 8  # reference: one fog volume in Emission, a linear transfer function: only the
+                  # one-fog sampler (cpu.fog); any other reference frame only cpu.pieces'
+PLAIN = 1 << 9    # particles: no lit volume and no surface (no shading code)
 MODE_BITS = ONE_FOG - 1
+
+
+@dataclass(frozen=True)
+class Variant:
+    """The bits of a band kernel's constant besides its mode."""
+    one_fog: bool
+    plain: bool  # no lit volume, no surface (ONE_FOG frames are plain too)
 
 
 def _literal(mode_type, where: str) -> int:
@@ -54,10 +63,15 @@ def per_mode(stub):
     return register
 
 
+def literal_variant(mode_type, where: str) -> Variant:
+    code = _literal(mode_type, where)
+    return Variant(one_fog=bool(code & ONE_FOG), plain=bool(code & (ONE_FOG | PLAIN)))
+
+
 def per_kernel(stub):
-    """per_mode whose ``choose(mode, one_fog: bool)`` also sees the ONE_FOG bit."""
+    """per_mode whose ``choose(mode, variant: Variant)`` also sees the constant's other bits."""
     def register(choose):
         _register(stub, lambda t: choose(literal_mode(t, stub.__name__),
-                                         bool(_literal(t, stub.__name__) & ONE_FOG)))
+                                         literal_variant(t, stub.__name__)))
         return choose
     return register

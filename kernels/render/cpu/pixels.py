@@ -191,8 +191,8 @@ def trace_ray(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, h
 
 
 @per_kernel(trace_ray)
-def _trace_ray(mode, one_fog):
-    if one_fog:  # one fog volume in Emission, a linear transfer function (launch.kernel_code)
+def _trace_ray(mode, variant):
+    if variant.one_fog:  # one fog volume in Emission, a linear transfer function (launch.kernel_code)
         def fog(mode, tiled, st, n, i, j, ta, tb, gauss, objs, accel, xfer, scr, hits, k2, nsteps, maxd,
                 t_near, t_far, tau_max):
             tf = objs.tf[0]
@@ -240,12 +240,12 @@ def _gauss_normal(mode):
 
 
 def surface_shade(mode, st, w2i, lights, settings, owx, owy, owz, dwx, dwy, dwz):
-    """A surface hit's shading (surface.shade_hit); nothing in a one-fog frame, which has none."""
+    """A surface hit's shading (surface.shade_hit); nothing in a plain frame, which has none."""
 
 
 @per_kernel(surface_shade)
-def _surface_shade(mode, one_fog):
-    if one_fog:
+def _surface_shade(mode, variant):
+    if variant.plain:
         def none(mode, st, w2i, lights, settings, owx, owy, owz, dwx, dwy, dwz):
             pass
         return none

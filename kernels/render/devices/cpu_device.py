@@ -193,13 +193,15 @@ class CPUDevice(Device):
     def end_frame(self):
         self._frame = None
 
-    def load_kernels(self, modes=None, *, scene=None, camera=None, tf=None, objects=(1, 2)):
+    def load_kernels(self, modes=None, *, scene=None, camera=None, tf=None,
+                     variants=("plain", "general")):
         """Device.load_kernels: a frame of ``scene`` (with ``camera``, ``tf``), drawn at 8x8 on this
         device (its sync is kept for the frame that follows), or, without a scene, each of
         ``modes`` (names; None: every mode) on small synthetic objects. Each mode compiles only its
         own kernels (cpu.per_mode); a scene's frame also those of the lights, clipping, colour
-        grids and surfaces it uses. ``objects``: the voxel modes' synthetic scenes, of one fog
-        volume and of two (each has its own band kernel: cpu.launch.kernel_code)."""
+        grids and surfaces it uses. ``variants``: the synthetic scenes' kinds, each with band
+        kernels of its own (cpu.launch.kernel_code): "plain" (one fog volume; unlit Gaussians),
+        "general" (two volumes; lit Gaussians)."""
         t0 = time.perf_counter()
         if scene is not None:
             key = (scene.mode, scene.features())
@@ -217,7 +219,11 @@ class CPUDevice(Device):
         gray = TransferFunction.from_colormap("grayscale", 0.0, 1.0)
         for mode in modes or [m.name.lower() for m in table.SPECS]:
             voxels = table.spec(mode).draws == table.VOXELS and table.spec(mode).drawn_as is None
-            for scene_objs in ([grid_objs * k for k in objects] if voxels else (objs,)):
+            for variant in variants:
+                general = variant == "general"
+                scene_objs = (grid_objs * (2 if general else 1) if voxels else
+                              [dataclasses.replace(o, shading="lit") for o in objs] if general
+                              else objs)
                 tiny.render(RenderScene(scene_objs, mode=mode), cam, gray)
         return time.perf_counter() - t0
 
