@@ -84,7 +84,9 @@ def compile_ahead(modes, threads=0, general=True) -> list:
         return []
     warmup = importlib.import_module(f"{MODULE}.kernels.warmup")
     service = addon_module("gaussvdb_addon.engine.warmup_service")
-    return service.start(warmup.jobs_for(modes=tuple(modes), general=general))
+    # at this process's priority: the render waits for it, and the import's threads would
+    # otherwise take its core
+    return service.start(warmup.jobs_for(modes=tuple(modes), general=general), nice=0)
 
 
 def addon_module(name: str):

@@ -99,10 +99,10 @@ def _last_line(path) -> str:
         return ""
 
 
-def _command(jobs) -> list:
+def _command(jobs, nice=NICE) -> list:
     boot = os.path.join(os.path.dirname(warmup.__file__), "warmup_boot.py")
     return [sys.executable, boot, "--package", package(), "--cache-root", cachedir.cache_root(),
-            "--jobs", ",".join(jobs), "--status", warmup.status_path(), "--nice", str(NICE)]
+            "--jobs", ",".join(jobs), "--status", warmup.status_path(), "--nice", str(nice)]
 
 
 def _environment() -> dict:
@@ -112,10 +112,11 @@ def _environment() -> dict:
     return env
 
 
-def start(jobs=None) -> list:
+def start(jobs=None, nice=NICE) -> list:
     """Start a warm-up process for the jobs of ``jobs`` (None: all) not compiled yet, in that
-    order, stopping a running one first. Returns the jobs it runs ([]: nothing to do, and a
-    running process goes on)."""
+    order, stopping a running one first; ``nice``: its priority below this process's (0: the
+    same, where this process only waits for it). Returns the jobs it runs ([]: nothing to do,
+    and a running process goes on)."""
     with _LOCK:
         todo = missing(jobs)
         if not todo:
@@ -128,7 +129,7 @@ def start(jobs=None) -> list:
         if sys.platform == "win32":
             kwargs["creationflags"] = subprocess.CREATE_NO_WINDOW | subprocess.BELOW_NORMAL_PRIORITY_CLASS
         with open(_state["log"], "w", encoding="utf-8") as log:
-            proc = subprocess.Popen(_command(todo), env=_environment(), stdin=subprocess.DEVNULL,
+            proc = subprocess.Popen(_command(todo, nice), env=_environment(), stdin=subprocess.DEVNULL,
                                     stdout=log, stderr=subprocess.STDOUT, close_fds=True, **kwargs)
         _state.update(proc=proc, jobs=list(todo), status=status, error="")
         _start_timer()
