@@ -98,13 +98,7 @@ def _job_render(mode, variant="plain"):
 
 
 def _render_jobs(modes) -> dict:
-    """render:<mode> per mode; for GENERAL's, render:<mode>:general after it."""
-    jobs = {}
-    for m in modes:
-        jobs[f"render:{m}"] = _job_render(m)
-        if m in GENERAL:
-            jobs[f"render:{m}:general"] = _job_render(m, "general")
-    return jobs
+    return {f"render:{m}": _job_render(m) for m in modes}
 
 
 
@@ -115,7 +109,9 @@ JOBS = {"reader": _job_reader,
         "error": _job_error,
         **_render_jobs([mode_names.DEFAULT]),
         **{f"lod:{n}": _job_lod(n) for n in lod_names.PRESETS if n != lod_names.DEFAULT},
-        **_render_jobs([m for m in mode_names.MENU_ORDER if m != mode_names.DEFAULT])}
+        **_render_jobs([m for m in mode_names.MENU_ORDER if m != mode_names.DEFAULT]),
+        # last: scenes beyond the plain ones (lit volumes, surfaces, several objects)
+        **{f"render:{m}:general": _job_render(m, "general") for m in GENERAL}}
 NAMES = tuple(JOBS)
 
 
