@@ -89,8 +89,8 @@ from .chords import (
     test_one,
     widen,
 )
-from .lit import lit_member, shade_sample
-from .per_mode import per_kernel, per_mode
+from .lit import shade_member, shade_sample
+from .per_mode import per_mode
 from .surface import field_crossing, mixture_hit
 from .vecmath import INF, _hot, add_sample, composite_sample, erf_fast, recolor, sample_color
 
@@ -156,23 +156,6 @@ def sweep_particles(mode, horizon, st, qs, fs, H, hid, ev_t, ev_h, mem, keep, cb
     qs[QH], qs[NM] = q0, nm
     fs[IA], fs[LAST], fs[RHO], fs[CEND] = a, last_t, rho, cend
     return done
-
-
-def shade_member(mode, H, h, g, gauss, objs, xfer, scr):
-    """A new member's shading where its volume is lit (lit_member); nothing in a plain frame."""
-
-
-@per_kernel(shade_member)
-def _shade_member(mode, variant):
-    if variant.plain:
-        def none(mode, H, h, g, gauss, objs, xfer, scr):
-            pass
-        return none
-
-    def shade(mode, H, h, g, gauss, objs, xfer, scr):
-        if objs.lit[gauss.obj[g]] != Shading.EMISSION:
-            lit_member(H, h, g, gauss, objs, xfer, scr)
-    return shade
 
 
 @njit(**_hot, inline="always")

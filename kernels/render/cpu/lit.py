@@ -35,6 +35,7 @@ from ..inputs.layout import (
     Kind,
     Shading,
 )
+from .per_mode import per_kernel
 from .surface import POINT, SUN, brick_xyz, light_at, trilinear
 from .vecmath import _hot, _jit, erf_span, sample_color, whitened_chord
 from .walk import clip_interval, walk_object
@@ -148,6 +149,23 @@ def lit_member(H, h, g, gauss, objs, xfer, scr):
                  gauss.grad[g, 2] + e * uz * iz, x, y, z, scr.wr, ts, objs, xfer.lights,
                  xfer.settings, xfer.par[objs.tf[ob]])
     H[h, CR], H[h, CG], H[h, CB] = samp[1], samp[2], samp[3]
+
+
+def shade_member(mode, H, h, g, gauss, objs, xfer, scr):
+    """A new member's shading where its volume is lit (lit_member); nothing in a plain frame."""
+
+
+@per_kernel(shade_member)
+def _shade_member(mode, variant):
+    if variant.plain:
+        def none(mode, H, h, g, gauss, objs, xfer, scr):
+            pass
+        return none
+
+    def shade(mode, H, h, g, gauss, objs, xfer, scr):
+        if objs.lit[gauss.obj[g]] != Shading.EMISSION:
+            lit_member(H, h, g, gauss, objs, xfer, scr)
+    return shade
 
 
 @njit(**_hot)
