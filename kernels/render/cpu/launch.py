@@ -1,6 +1,6 @@
 """The CPU kernels' launcher: one band kernel per render mode (its mode a compile-time constant
-down to the per-pixel code, cpu.per_mode; a reference frame of one plain fog volume has its own,
-kernel_code), drawn on Python threads (the kernels release the GIL). CPUDevice calls
+down to the per-pixel code, cpu.per_mode; the plain scenes of reference and particles have their
+own, kernel_code), drawn on Python threads (the kernels release the GIL). CPUDevice calls
 render_rows."""
 from __future__ import annotations
 

@@ -220,10 +220,12 @@ class CPUDevice(Device):
         for mode in modes or [m.name.lower() for m in table.SPECS]:
             voxels = table.spec(mode).draws == table.VOXELS and table.spec(mode).drawn_as is None
             for variant in variants:
-                general = variant == "general"
-                scene_objs = (grid_objs * (2 if general else 1) if voxels else
-                              [dataclasses.replace(o, shading="lit") for o in objs] if general
-                              else objs)
+                if voxels:
+                    scene_objs = grid_objs * (2 if variant == "general" else 1)
+                elif variant == "general":
+                    scene_objs = [dataclasses.replace(o, shading="lit") for o in objs]
+                else:
+                    scene_objs = objs
                 tiny.render(RenderScene(scene_objs, mode=mode), cam, gray)
         return time.perf_counter() - t0
 
