@@ -143,9 +143,10 @@ def leaf_box(grid):
 _WARM = set()  # (grid class, LOD, weights, band, error) converted once in this process
 
 
-def _warm_up(grid, options) -> float:
+def _warm_up(grid, options, ready=None) -> float:
     """Convert a few leaves of ``grid`` first, so that compiling (or loading) the kernels on
-    first use is timed apart from the LODs' own conversion times; seconds it took."""
+    first use is timed apart from the LODs' own conversion times; seconds it took. ``ready``:
+    convert_steps'."""
     from . import lod
 
     o = options
@@ -163,8 +164,12 @@ def _warm_up(grid, options) -> float:
         active_voxels=int(np.unpackbits(masks.view(np.uint8)).sum()))
     t0 = time.perf_counter()
     for name in todo:
+        if ready is not None:
+            ready([f"lod:{name}"])
         gset = lod.build_lod(small, name, o.weights, level_set_band=o.level_set_band)
         if o.compute_error:
+            if ready is not None:
+                ready(["error"])
             lod.field_error(small, gset)
         _WARM.add(keys[name])
     return time.perf_counter() - t0
@@ -299,11 +304,13 @@ def read_color_grid(filepath, name, vector_magnitude=False, max_bytes=None):
     return g
 
 
-def convert_steps(filepath, options=DEFAULTS, skipped=None):
+def convert_steps(filepath, options=DEFAULTS, skipped=None, ready=None):
     """Generator: yields (fraction < 1, text) before each step; returns [ConvertedGrid].
 
     ``options``: a ConvertOptions (which grids and LODs, how; convert_options.py says what each
-    field does). ``skipped`` collects (grid, reason) for grids left out.
+    field does). ``skipped`` collects (grid, reason) for grids left out. ``ready(jobs)`` is
+    called before the kernels of those warm-up jobs (warmup.py: 'lod:medium', 'error') are
+    first used, so that a caller whose warm-up process compiles them can wait for it.
     """
     from . import lod, vdb
 
@@ -334,7 +341,7 @@ def convert_steps(filepath, options=DEFAULTS, skipped=None):
             from .render.scene.transfer import voxel_stats
 
             cg.values = voxel_stats(g)
-        cg.seconds_compile = _warm_up(g, o)
+        cg.seconds_compile = _warm_up(g, o, ready)
         for name in o.lods:
             yield 0.05 + 0.95 * k / steps, f"{g.name}: {lod_label(name)} LOD"
             k += 1

@@ -41,11 +41,44 @@ class WarmupError(Exception):
 
 
 # -- the jobs --------------------------------------------------------------------------------------
+def fixture_arrays() -> dict:
+    """What FIXTURE holds, as arrays (tools/gen_warmup_fixture.py writes them with openvdb): a
+    fog volume (voxels above ``fog_tolerance`` active, an active ``tile`` box of leaf-sized tiles
+    beside them) and a narrow-band level set, in index space with ``voxel_size``."""
+    import numpy as np
+
+    x, y, z = np.meshgrid(*(np.arange(24, dtype=np.float32),) * 3, indexing="ij")
+    r = np.sqrt((x - 11.5) ** 2 + (y - 11.5) ** 2 + (z - 11.5) ** 2)
+    return dict(fog=np.where(r < 10.0, np.exp(-(r / 6.0) ** 2), 0.0).astype(np.float32),
+                fog_tolerance=1e-3, tile=((32, 0, 0), (47, 15, 15), 0.25),
+                sdf=np.clip((r - 8.0) * 0.1, -0.3, 0.3).astype(np.float32), sdf_background=0.3,
+                voxel_size=0.1)
+
+
 def _fixture_grids():
     from . import pipeline
 
     grids, _seconds = pipeline.read_grids(FIXTURE)
     return grids
+
+
+def _made_grids():
+    """The fixture's two grids made from ``fixture_arrays`` without reading the file: the LOD
+    and field-error jobs then compile no reader (they run beside an import that compiles it)."""
+    import numpy as np
+
+    from .lod.synthetic import grid_from_dense
+    from .vdb.griddata import GridData
+
+    a = fixture_arrays()
+    m = np.diag([a["voxel_size"]] * 3 + [1.0])
+    (x0, y0, z0), (x1, y1, z1), value = a["tile"]
+    tiles = [((x, y, z), 8, value, True) for x in range(x0, x1 + 1, 8)
+             for y in range(y0, y1 + 1, 8) for z in range(z0, z1 + 1, 8)]
+    fog = grid_from_dense(a["fog"], a["fog"] > a["fog_tolerance"], tiles=tiles, index_to_world=m)
+    ls = grid_from_dense(a["sdf"], grid_class="level_set", background=a["sdf_background"],
+                         index_to_world=m, name="surface")
+    return [GridData(**vars(g)) for g in (fog, ls)]
 
 
 def _job_reader():
@@ -66,7 +99,7 @@ def _job_lod(name):
     def job():
         from . import pipeline
 
-        for grid in _fixture_grids():  # a fog volume and a level set
+        for grid in _made_grids():  # a fog volume and a level set
             pipeline.convert_lod(grid, name, compute_error=False)
     job.__doc__ = f"Build the {lod_names.label(name)} LOD of the fixture's fog volume and level set."
     return job
@@ -76,7 +109,7 @@ def _job_error():
     """The field error an import measures when asked (pipeline.measure_error)."""
     from . import pipeline
 
-    for grid in _fixture_grids():
+    for grid in _made_grids():
         pipeline.convert_lod(grid, "low", compute_error=True)
 
 

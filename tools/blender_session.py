@@ -70,23 +70,19 @@ def kernels_module(name: str):
     return importlib.import_module(f"{MODULE}.kernels.{name}" if "bpy" in _STARTED else f"kernels.{name}")
 
 
-def compile_ahead(modes, threads=0, general=True) -> list:
+def compile_ahead(modes, threads=0, general=True, lod=None) -> list:
     """On a cache without the render kernels of ``modes``: compile them now in a second process
-    (the add-on's background warm-up, started under the extension's name) while this one reads
+    (the add-on's warmup_service.compile_ahead, under the extension's name) while this one reads
     the file and builds its LOD; the render then waits for that process (final_render's
-    wait_for_kernels) instead of compiling them too. Only where this process is given more
-    than one core (``threads``, 0: NUMBA_NUM_THREADS or all; a cluster worker has one).
-    ``general``: the render's scene may need more than a plain fog volume's kernels (warmup.
-    jobs_for; those it needs and this process does not compile ahead compile in the render).
-    Returns the jobs started. Call after start()."""
-    cores = threads or int(os.environ.get("NUMBA_NUM_THREADS") or 0) or os.cpu_count() or 1
-    if cores < 2:
-        return []
+    wait_for_kernels) instead of compiling them too. ``general``: the render's scene may need
+    more than a plain fog volume's kernels (warmup.jobs_for). ``lod``: a LOD this process
+    imports, compiled there first (the import loads it: pipeline.convert_steps' ``ready``),
+    where this process has the more to compile (render_setup.lod_ahead). Returns the jobs
+    started. Call after start()."""
     warmup = importlib.import_module(f"{MODULE}.kernels.warmup")
     service = addon_module("gaussvdb_addon.engine.warmup_service")
-    # at this process's priority: the render waits for it, and the import's threads would
-    # otherwise take its core
-    return service.start(warmup.jobs_for(modes=tuple(modes), general=general), nice=0)
+    first = [f"lod:{lod}"] if lod else []
+    return service.compile_ahead(first + warmup.jobs_for(modes=tuple(modes), general=general), threads)
 
 
 def addon_module(name: str):

@@ -81,8 +81,9 @@ def run(args) -> dict:
     from blender_session import addon_module, compile_ahead, start
 
     bpy = start()
-    if args.size is not None:  # the renders' kernels compile beside the import's (a cold cache)
-        compile_ahead([cmd_render.options().mode], general=False)
+    if args.size is not None:  # the renders' kernels compile beside the import's (a cold cache),
+        # after the first LOD's: this process then compiles the reader and the field error
+        compile_ahead([cmd_render.options().mode], general=False, lod="low")
     importer = addon_module("gaussvdb_addon.io.importer")
     lod = addon_module("kernels.lod")
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -12,9 +12,8 @@ import argparse
 import os
 import sys
 
-import numpy as np
-
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
 
 
 def write(path: str) -> str:
@@ -23,24 +22,24 @@ def write(path: str) -> str:
     bpy.utils.expose_bundled_modules()
     import openvdb as ov
 
-    x, y, z = np.meshgrid(*(np.arange(24, dtype=np.float32),) * 3, indexing="ij")
-    r = np.sqrt((x - 11.5) ** 2 + (y - 11.5) ** 2 + (z - 11.5) ** 2)
+    from kernels.warmup import fixture_arrays
+
+    a = fixture_arrays()
     fog = ov.FloatGrid()
     fog.name = "density"
     fog.gridClass = ov.GridClass.FOG_VOLUME
-    dense = np.where(r < 10.0, np.exp(-(r / 6.0) ** 2), 0.0).astype(np.float32)
-    fog.copyFromArray(dense, ijk=(0, 0, 0), tolerance=1e-3)
-    fog.fill((32, 0, 0), (47, 15, 15), 0.25, active=True)  # an active tile (and its leaves)
-    fog.transform = ov.createLinearTransform(voxelSize=0.1)
+    fog.copyFromArray(a["fog"], ijk=(0, 0, 0), tolerance=a["fog_tolerance"])
+    lo, hi, value = a["tile"]
+    fog.fill(lo, hi, value, active=True)  # an active tile (and its leaves)
+    fog.transform = ov.createLinearTransform(voxelSize=a["voxel_size"])
 
     ls = ov.FloatGrid()
-    ls.background = 0.3
+    ls.background = a["sdf_background"]
     ls.name = "surface"
     ls.gridClass = ov.GridClass.LEVEL_SET
-    sdf = np.clip((r - 8.0) * 0.1, -0.3, 0.3).astype(np.float32)
-    ls.copyFromArray(sdf, ijk=(0, 0, 0), tolerance=0.0)
+    ls.copyFromArray(a["sdf"], ijk=(0, 0, 0), tolerance=0.0)
     ls.saveFloatAsHalf = True
-    ls.transform = ov.createLinearTransform(voxelSize=0.1)
+    ls.transform = ov.createLinearTransform(voxelSize=a["voxel_size"])
     ov.write(path, grids=[fog, ls])
     return path
 

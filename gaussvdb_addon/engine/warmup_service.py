@@ -11,6 +11,7 @@ registration set, and writes its progress to a JSON status file; a finished job 
     warmup_service.ensure(["reader", "lod:medium"])  # join the running one, or start one for these
     warmup_service.progress(["reader"])         # {'done': bool, 'failed': '', 'text': ..., ...}
     warmup_service.wait(jobs, cancel=engine.test_break, report=print)  # a render thread's wait
+    warmup_service.compile_ahead(["error"])     # background mode: a second process compiles these
     warmup_service.stop()                       # unregister and Blender's exit (atexit)
 
 Background mode (``blender -b``, the bpy module, scripts) never starts one: those compile in
@@ -66,6 +67,25 @@ def needed(jobs) -> list:
         return todo
     with _LOCK:
         return [j for j in todo if j in _state["jobs"]] if running() else []
+
+
+def compile_ahead(jobs, threads=0) -> list:
+    """Background mode, on a cache without the kernels of ``jobs``: compile them in a second
+    process (at this process's priority: this one waits for it) while this one compiles what it
+    needs first (an import its reader and LODs, a render its import); ``wait`` (or the import's
+    ``ready``) then joins it rather than compiling them too. Only where this process is given
+    more than one core (``threads``, 0: NUMBA_NUM_THREADS or all; a cluster worker has one),
+    and never over a running warm-up. Returns the jobs started."""
+    cores = threads or int(os.environ.get("NUMBA_NUM_THREADS") or 0) or os.cpu_count() or 1
+    if cores < 2 or not background() or running() or not jobs:
+        return []
+    return start(jobs, nice=0)
+
+
+def ready(jobs) -> None:
+    """kernels.pipeline.convert_steps' ``ready``: wait for the jobs a warm-up process started by
+    this one compiles now (background mode; the UI's import waited before it began)."""
+    wait(jobs)
 
 
 def compile_here(jobs=None) -> dict:
@@ -206,7 +226,8 @@ def wait(jobs, cancel=None, report=None, interval=POLL_SECONDS) -> str:
     jobs = needed(jobs)
     if not jobs:
         return "done"
-    ensure(jobs)
+    if not background():  # background mode joins the running process, never restarts it
+        ensure(jobs)
     last, t0 = None, time.perf_counter()
     while True:
         p = progress(jobs)

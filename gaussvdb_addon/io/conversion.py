@@ -37,10 +37,14 @@ def import_options(options):
 def convert_steps(filepath, options=DEFAULTS, skipped=None):
     """kernels.pipeline.convert_steps for an import (import_options), its last step creating
     the objects."""
-    from ..engine import kernel_cache
+    from ..engine import kernel_cache, warmup_service
 
     kernel_cache.announce("vdb", "lod")
-    out = yield from pipeline.convert_steps(filepath, import_options(options), skipped)
+    if options.compute_error and not kernel_cache.compiled("lod"):
+        # a new cache (an install, an update): the field error compiles beside the reader and LODs
+        warmup_service.compile_ahead(["error"])
+    out = yield from pipeline.convert_steps(filepath, import_options(options), skipped,
+                                            warmup_service.ready)
     yield 1.0, "creating objects"
     return out
 

@@ -45,6 +45,29 @@ def grid_from_dense(values, mask=None, origin=(0, 0, 0), *, grid_class="fog_volu
                      index_to_world=index_to_world, tiles=tiles, background=background, name=name)
 
 
+def full_block_set(shape, edge, lod):
+    """The GaussianSet build_lod makes (field weights) of a grid of ones of ``shape`` (multiples
+    of 8, origin 0) at a LOD that keeps each full ``edge``^3 block as one Gaussian (Low: 8, High:
+    2), made here with numpy: a device's load_kernels draws it without compiling a LOD kernel.
+    tests/kernels/test_lod_synthetic.py checks it equals build_lod's."""
+    from . import weights
+    from .gaussian_set import GaussianSet
+
+    leaves = np.argwhere(np.ones(np.asarray(shape) // 8, bool)).astype(np.int32) * 8
+    per = 8 // edge
+    blocks = np.argwhere(np.ones((per, per, per), bool)) * edge + (edge - 1) / 2.0
+    n = len(leaves) * len(blocks)
+    codes = np.full((n, 3), edge, np.int32)
+    scale = weights.sigma_scale("field")
+    sigmas = weights.sigmas_from_codes(codes, scale)
+    voxels = np.full(n, edge ** 3, np.int32)
+    return GaussianSet(
+        group_origins=leaves, group_start=np.arange(len(leaves) + 1, dtype=np.int64) * len(blocks),
+        offsets=np.tile(blocks, (len(leaves), 1)).astype(np.float32), sigmas=sigmas,
+        values=np.ones(n, np.float32), amplitudes=weights.amplitudes(sigmas, voxels, "field"),
+        voxels=voxels, lod=lod, n_leaf_groups=len(leaves), size_codes=codes, sigma_scale=scale)
+
+
 def masks_from_bits(bits):
     """bool (N, 512) -> uint64 (N, 8) with voxel n at bit n & 63 of word n >> 6."""
     bits = np.asarray(bits, dtype=bool).reshape(-1, 8, 64)

@@ -71,9 +71,10 @@ def test_warmup_then_a_later_process_compiles_nothing(tmp_path):
 
 def test_render_on_an_empty_cache_compiles_its_render_kernels_in_a_second_process(tmp_path):
     """`./gaussvdb render` on an empty cache: the render mode's kernels compile in the warm-up
-    process it starts beside the import (its status and marker say so), and the render waits
-    for them rather than compiling them again (its own compile seconds stay near zero; a
-    reference frame compiles ~20 s here)."""
+    process it starts beside the import (its status and marker say so), after the LOD a
+    reference render imports (render_setup.lod_ahead), and the render waits for them rather
+    than compiling them again (its own compile seconds stay near zero; a reference frame
+    compiles ~10 s here)."""
     cache = tmp_path / "kernels"
     out = tmp_path / "x.png"
     r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "cli.py"), "render",
@@ -85,6 +86,45 @@ def test_render_on_an_empty_cache_compiles_its_render_kernels_in_a_second_proces
     stats = json.loads(r.stdout.strip().splitlines()[-1])
     warm = cache / "bl_ext.user_default.gaussvdb" / "warmup"
     status = json.loads((warm / "status.json").read_text())
-    assert status["jobs"] == ["render:reference"] and status["state"] == "done", status
-    assert any(p.name == "render-reference.done" for p in warm.rglob("*.done"))
+    assert status["jobs"] == ["lod:medium", "render:reference"] and status["state"] == "done", status
+    assert {"render-reference.done", "lod-medium.done"} <= {p.name for p in warm.rglob("*.done")}
     assert stats["seconds_compile"] < 2.0 and out.is_file()
+
+
+# a Blender import (background mode) on an empty cache, with the field error
+IMPORT = """
+import json, os, sys
+sys.path.insert(0, %(root)r)
+sys.path.insert(1, os.path.join(%(root)r, "tools"))
+from blender_session import MODULE, addon_module, start
+bpy = start()
+objs = addon_module("gaussvdb_addon.io.importer").import_vdb(%(file)r, lods=("low",))
+from numba.core.dispatcher import Dispatcher
+mixture = sys.modules[MODULE + ".kernels.lod.mixture"]
+calls = {"hits": 0, "misses": 0}
+for value in vars(mixture).values():
+    d = getattr(value, "dispatcher", value)
+    if isinstance(d, Dispatcher) and d.__module__ == mixture.__name__:
+        calls["hits"] += sum(d.stats.cache_hits.values())
+        calls["misses"] += sum(d.stats.cache_misses.values())
+stats = addon_module("gaussvdb_addon.io.importer").object_stats(objs[0])
+print(json.dumps(dict(calls, nrmse=stats[0].get("nrmse"))))
+"""
+
+
+def test_an_import_on_an_empty_cache_compiles_the_field_error_in_a_second_process(tmp_path):
+    """An import in background mode (a script, `blender -b`) on an empty cache: the field
+    error's kernels compile in a warm-up process started beside the reader and the LOD (its
+    status and marker say so), and the import loads them from there rather than compiling
+    them too (numba's cache hits, no miss, in the error's module)."""
+    cache = tmp_path / "kernels"
+    r = subprocess.run([sys.executable, "-c", IMPORT % {
+        "root": ROOT, "file": os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")}],
+        capture_output=True, text=True, timeout=900, env=_env(cache))
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    warm = cache / "bl_ext.user_default.gaussvdb" / "warmup"
+    status = json.loads((warm / "status.json").read_text())
+    assert status["jobs"] == ["error"] and status["state"] == "done", status
+    assert got["nrmse"] is not None and 0.0 < got["nrmse"] < 1.0, got
+    assert got["hits"] > 0 and got["misses"] == 0, got

@@ -86,15 +86,17 @@ def grid_from_dense(values, origin=(0, 0, 0), *, grid_class="fog_volume", backgr
 
 
 def warm_objects():
-    """(Gaussian objects, voxel objects, a camera on them) for a device's load_kernels: a Low
-    and a High set of a small block, real GaussianSets (splat: a coarse lattice and one of single
-    voxels, with the dtypes imports make), and the block's grid alone (the reference mode, which
-    needs no Gaussians: none are built for it)."""
-    from ...lod import build_lod
-    from ...lod.synthetic import grid_from_dense
+    """(Gaussian objects, voxel objects, a camera on them) for a device's load_kernels: the Low
+    and the High set of a small block, GaussianSets equal to build_lod's (splat: a coarse lattice
+    and one of single voxels, with the dtypes imports make) but made without the LOD kernels (a
+    render's warm-up runs beside an import that compiles those), and the block's grid alone (the
+    reference mode, which needs no Gaussians)."""
+    from ...lod.synthetic import full_block_set, grid_from_dense
     from .camera import Camera
     from .objects import RenderObject
 
-    g = grid_from_dense(np.ones((16, 8, 8), np.float32))
-    objs = [RenderObject(build_lod(g, lod), np.eye(4)) for lod in ("low", "high")]
+    shape = (16, 8, 8)
+    g = grid_from_dense(np.ones(shape, np.float32))
+    objs = [RenderObject(full_block_set(shape, edge, lod), np.eye(4))
+            for lod, edge in (("low", 8), ("high", 2))]
     return objs, [RenderObject(None, np.eye(4), grid=g)], Camera.frame_box([-3.0] * 3, [19.0] * 3, 8, 8)
