@@ -352,10 +352,24 @@ def prune_stale(root=None) -> int:
     return freed
 
 
-def warm(names=None, status=None, progress=None, cancel=None, on_done=None, force=False) -> dict:
+def default_processes() -> int:
+    """How many jobs a warm-up compiles at once: one per core, at most 4 (the longest jobs,
+    ~20 s each, then bound the time; each process holds a few hundred MB while it compiles)."""
+    return max(1, min(os.cpu_count() or 1, 4))
+
+
+def _timed(name) -> float:
+    t0 = time.perf_counter()
+    JOBS[name]()
+    return time.perf_counter() - t0
+
+
+def warm(names=None, status=None, progress=None, cancel=None, on_done=None, force=False,
+         processes=1) -> dict:
     """``run`` that skips the jobs already marked done (unless ``force``), marks each job it
-    finishes and keeps a status file (``status``: its path, None for none). Returns {name:
-    seconds} of the jobs run."""
+    finishes and keeps a status file (``status``: its path, None for none); on ``processes``
+    worker processes at once when more than one (warmup_pool.py). Returns {name: seconds} of
+    the jobs run."""
     prune_stale()  # an update's old kernels
     todo = check_names(names) if force else missing(names)
     writer = StatusWriter(status, todo)
@@ -372,7 +386,14 @@ def warm(names=None, status=None, progress=None, cancel=None, on_done=None, forc
             on_done(name, seconds)
 
     try:
-        seconds = run(todo, on_progress, cancel, done)
+        if processes > 1 and len(todo) > 1:
+            from . import warmup_pool
+
+            seconds = warmup_pool.run(todo, processes, on_progress, cancel, done,
+                                      cache_root=cachedir.cache_root(),
+                                      errors=(WarmupCancelled, WarmupError))
+        else:
+            seconds = run(todo, on_progress, cancel, done)
     except WarmupCancelled as err:
         writer.write(state="cancelled", error=str(err))
         raise
@@ -391,6 +412,8 @@ def main(argv=None) -> int:
     ap.add_argument("--status", default="")
     ap.add_argument("--cache-root", default="")
     ap.add_argument("--nice", type=int, default=0)
+    ap.add_argument("--processes", type=int, default=1, help="jobs compiled at once")
+    ap.add_argument("--serve", action="store_true", help="a warmup_pool worker")
     args = ap.parse_args(argv)
     if args.cache_root:
         cachedir.set_cache_root(args.cache_root)
@@ -399,9 +422,14 @@ def main(argv=None) -> int:
             os.nice(args.nice)  # the UI's process stays responsive while this one compiles
         except OSError:
             pass
+    if args.serve:
+        from . import warmup_pool
+
+        return warmup_pool.serve(_timed)
     names = [n for n in args.jobs.split(",") if n.strip()] or None
     try:
-        warm([n.strip() for n in names] if names else None, args.status or status_path())
+        warm([n.strip() for n in names] if names else None, args.status or status_path(),
+             processes=args.processes)
     except (WarmupError, ValueError) as err:
         print(f"gaussvdb warm-up: {err}", file=sys.stderr)
         return 1

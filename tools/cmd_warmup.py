@@ -42,6 +42,8 @@ def main(argv):
                     help="the commands whose kernels to warm: render (and demo, blender -b with "
                          "this checkout), convert, or both (default render)")
     ap.add_argument("--force", action="store_true", help="run jobs already marked compiled too")
+    ap.add_argument("--processes", type=cli_errors.threads, default=0, help="jobs compiled at "
+                    "once, each in a process of its own (0: one per core, at most 4)")
     args = ap.parse_args(argv)
     sys.path.insert(0, ROOT)
     from kernels import cachedir, warmup
@@ -69,7 +71,8 @@ def main(argv):
             count[0] += 1
             print(f"  [{count[0]}/{len(todo)}] {name:<18} {seconds:7.1f} s", flush=True)
         try:
-            mod.warm(todo, mod.status_path(), on_done=line, force=args.force)
+            mod.warm(todo, mod.status_path(), on_done=line, force=args.force,
+                     processes=args.processes or mod.default_processes())
         except mod.WarmupError as err:
             raise cli_errors.InputError(str(err)) from None
         spent = time.perf_counter() - t0

@@ -79,7 +79,7 @@ def compile_ahead(jobs, threads=0) -> list:
     cores = threads or int(os.environ.get("NUMBA_NUM_THREADS") or 0) or os.cpu_count() or 1
     if cores < 2 or not background() or running() or not jobs:
         return []
-    return start(jobs, nice=0)
+    return start(jobs, nice=0, processes=1)  # this process compiles on the other core
 
 
 def ready(jobs) -> None:
@@ -91,7 +91,7 @@ def ready(jobs) -> None:
 def compile_here(jobs=None) -> dict:
     """The jobs (None: all) not compiled yet, run in this process (background mode: nothing to
     keep responsive). {name: seconds}."""
-    return warmup.warm(jobs, warmup.status_path())
+    return warmup.warm(jobs, warmup.status_path(), processes=warmup.default_processes())
 
 
 # -- the process -----------------------------------------------------------------------------------
@@ -119,10 +119,11 @@ def _last_line(path) -> str:
         return ""
 
 
-def _command(jobs, nice=NICE) -> list:
+def _command(jobs, nice=NICE, processes=1) -> list:
     boot = os.path.join(os.path.dirname(warmup.__file__), "warmup_boot.py")
     return [sys.executable, boot, "--package", package(), "--cache-root", cachedir.cache_root(),
-            "--jobs", ",".join(jobs), "--status", warmup.status_path(), "--nice", str(nice)]
+            "--jobs", ",".join(jobs), "--status", warmup.status_path(), "--nice", str(nice),
+            "--processes", str(processes)]
 
 
 def _environment() -> dict:
@@ -132,11 +133,12 @@ def _environment() -> dict:
     return env
 
 
-def start(jobs=None, nice=NICE) -> list:
+def start(jobs=None, nice=NICE, processes=None) -> list:
     """Start a warm-up process for the jobs of ``jobs`` (None: all) not compiled yet, in that
     order, stopping a running one first; ``nice``: its priority below this process's (0: the
-    same, where this process only waits for it). Returns the jobs it runs ([]: nothing to do,
-    and a running process goes on)."""
+    same, where this process only waits for it); ``processes``: jobs compiled at once (None:
+    warmup.default_processes). Returns the jobs it runs ([]: nothing to do, and a running
+    process goes on)."""
     with _LOCK:
         todo = missing(jobs)
         if not todo:
@@ -149,7 +151,8 @@ def start(jobs=None, nice=NICE) -> list:
         if sys.platform == "win32":
             kwargs["creationflags"] = subprocess.CREATE_NO_WINDOW | subprocess.BELOW_NORMAL_PRIORITY_CLASS
         with open(_state["log"], "w", encoding="utf-8") as log:
-            proc = subprocess.Popen(_command(todo, nice), env=_environment(), stdin=subprocess.DEVNULL,
+            proc = subprocess.Popen(_command(todo, nice, processes or warmup.default_processes()),
+                                    env=_environment(), stdin=subprocess.DEVNULL,
                                     stdout=log, stderr=subprocess.STDOUT, close_fds=True, **kwargs)
         _state.update(proc=proc, jobs=list(todo), status=status, error="")
         _start_timer()

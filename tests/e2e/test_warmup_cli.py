@@ -112,6 +112,25 @@ print(json.dumps(dict(calls, nrmse=stats[0].get("nrmse"))))
 """
 
 
+def test_jobs_on_two_processes_leave_what_a_later_process_loads(tmp_path):
+    """`--processes 2`: two jobs compile at once, each in a worker process of its own under the
+    render command's identity; both leave their markers, and a later process loads their
+    kernels without compiling."""
+    cache = tmp_path / "kernels"
+    jobs = ["lod:low", "render:paper"]
+    r = subprocess.run(CLI + ["--jobs", ",".join(jobs), "--cache-dir", str(cache), "--processes", "2"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert sorted(ln.split()[1] for ln in r.stdout.splitlines() if ln.strip().startswith("[")) == jobs
+    status = json.loads((cache / "bl_ext.user_default.gaussvdb" / "warmup" / "status.json").read_text())
+    assert status["state"] == "done" and sorted(status["seconds"]) == jobs, status
+    out = subprocess.run([sys.executable, "-c", CHECK % {"root": ROOT, "jobs": jobs}],
+                         capture_output=True, text=True, timeout=600, env=_env(cache))
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["hits"] > 0 and got["misses"] == 0, got
+
+
 def test_an_import_on_an_empty_cache_compiles_the_field_error_in_a_second_process(tmp_path):
     """An import in background mode (a script, `blender -b`) on an empty cache: the field
     error's kernels compile in a warm-up process started beside the reader and the LOD (its

@@ -107,3 +107,23 @@ def test_an_update_s_old_kernels_are_pruned(tmp_path):
         f.write_bytes(b"12345")
     assert warmup.prune_stale(str(tmp_path)) == 5 * len(gone)
     assert all(f.exists() for f in keep) and not any(f.parent.exists() for f in gone)
+
+
+def test_a_pool_worker_answers_each_job_in_one_line():
+    """warmup_pool.serve: one JSON answer per job name read (seconds, or the error in one line),
+    and it returns at the end of its input."""
+    import io
+
+    from kernels import warmup_pool
+
+    def job(name):
+        if name == "bad":
+            raise ValueError("no such grid")
+        return 1.5
+
+    out = io.StringIO()
+    assert warmup_pool.serve(job, io.StringIO("reader\nbad\nlod:low\n"), out) == 0
+    answers = [json.loads(line) for line in out.getvalue().splitlines()]
+    assert answers == [{"job": "reader", "seconds": 1.5},
+                       {"job": "bad", "error": "ValueError: no such grid"},
+                       {"job": "lod:low", "seconds": 1.5}]
