@@ -24,6 +24,7 @@ import hashlib
 import json
 import os
 import platform
+import signal
 import sys
 import time
 
@@ -426,6 +427,9 @@ def main(argv=None) -> int:
         from . import warmup_pool
 
         return warmup_pool.serve(_timed)
+    if args.processes > 1 and hasattr(signal, "SIGTERM"):
+        # a stop (warmup_service.stop) ends the workers too, not only after their current job
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     names = [n for n in args.jobs.split(",") if n.strip()] or None
     try:
         warm([n.strip() for n in names] if names else None, args.status or status_path(),

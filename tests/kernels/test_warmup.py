@@ -127,3 +127,31 @@ def test_a_pool_worker_answers_each_job_in_one_line():
     assert answers == [{"job": "reader", "seconds": 1.5},
                        {"job": "bad", "error": "ValueError: no such grid"},
                        {"job": "lod:low", "seconds": 1.5}]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_stopping_a_pool_warm_up_ends_its_workers(tmp_path):
+    """A warm-up on two processes, stopped (SIGTERM, as warmup_service.stop does) while both
+    workers compile: the workers end with it, not after their job."""
+    import time
+
+    boot = os.path.join(ROOT, "kernels", "warmup_boot.py")
+    status = tmp_path / "status.json"
+    proc = subprocess.Popen([sys.executable, boot, "--package", "", "--cache-root", str(tmp_path),
+                             "--jobs", "render:field,render:paper", "--processes", "2",
+                             "--status", str(status)])
+    children = f"/proc/{proc.pid}/task/{proc.pid}/children"
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and "+" not in warmup.read_status(str(status)).get("name", ""):
+            time.sleep(0.1)  # until both workers have a job
+        with open(children) as fh:
+            workers = fh.read().split()
+        assert len(workers) == 2
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    time.sleep(0.5)
+    alive = [w for w in workers if os.path.exists(f"/proc/{w}")
+             and open(f"/proc/{w}/stat").read().split()[2] != "Z"]
+    assert not alive, f"workers {alive} outlived the stopped warm-up"
