@@ -101,6 +101,8 @@ def main(argv=None):
     rows = {}
     with tempfile.TemporaryDirectory(prefix="gaussvdb-bench-cluster-") as tmp:
         pattern = make_sequence(os.path.join(tmp, "seq"), a.frames, a.upsample)
+        if hasattr(os, "sync"):  # the frames just written reach the disk before any timing
+            os.sync()
         kinds = [a.only] if a.only else ["convert", "render"]
         for r in range(a.rounds):
             for kind in kinds:

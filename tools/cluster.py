@@ -294,8 +294,14 @@ def convert_sequence(pattern, frames, grid, lod, cache_dir, options, *, workers=
         write_json(report_path, {**res, "frames": sorted(items, key=lambda i: i["frame"]),
                                  "complete": False})
 
+    def load_kernels(client, threads):  # on every worker at once, before the frames
+        t0 = time.perf_counter()
+        with contextlib.suppress(Exception):  # failed: each worker loads them in its first frame
+            client.run(cluster_tasks.load_kernels, dataclasses.replace(job, threads=threads), ROOT)
+        res["seconds_load"] = time.perf_counter() - t0
+
     dash = _loop((workers, scheduler, cores), prog, todo, submit, "convert", items, flush,
-                 size=lambda n: file_size(pat.path(n)))
+                 before=load_kernels, size=lambda n: file_size(pat.path(n)))
     sweep(job.cache_file(pat.path(n)) for n in todo)
     res = _finish(res, items, t_all, report_path, dash)
     done = [i for i in items if "cache_bytes" in i]

@@ -154,6 +154,23 @@ def convert_frame(job: ConvertJob, frame: int, path: str, root=None) -> dict:
     return _stamp(item, t0, rss0)
 
 
+def load_kernels(job: ConvertJob, root=None) -> float:
+    """A frame's kernels loaded from the cache (compiled on a cold one) in this worker before its
+    first frame: the job's conversion and encoding of the warm-up's small file
+    (kernels/data/warmup.vdb), on every worker at once while none has a frame yet
+    (cluster.convert_sequence), rather than in each worker's first frame. Returns its seconds."""
+    use_root(root)
+    from kernels import pipeline, warmup
+    from kernels.lod import encode_compact
+
+    t0 = time.perf_counter()
+    set_threads(job.threads)
+    cg, _why = pipeline.convert_frame(warmup.FIXTURE, "density", job.lod, job.options)
+    if cg is not None:
+        encode_compact(cg.lods[0].gset)
+    return time.perf_counter() - t0
+
+
 def frame_figures(path: str, grid: str, threads=0, root=None) -> dict:
     """kernels.sequence.frame_figures of one frame of a sequence to render (its value figures
     and box): the driver gives them all to the render tasks, so no worker reads every frame.

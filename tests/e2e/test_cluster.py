@@ -100,6 +100,7 @@ def test_local_cluster_equals_serial_then_skips(serial):
     assert len(same_cache(tmp / "serial", cache)) == 6
     assert [f["frame"] for f in res["frames"]] == list(range(1, 7))
     assert not res["errors"] and res["skipped"] == 0 and len(res["workers"]) == 2
+    assert res["seconds_load"] > 0  # every worker loaded a frame's kernels before its first frame
     for f in res["frames"]:
         assert f["worker"] in res["workers"] and f["seconds"] > 0
         assert f["peak_rss_bytes"] >= f["rss_before_bytes"] > 0
@@ -114,7 +115,7 @@ def test_local_cluster_equals_serial_then_skips(serial):
     assert again.returncode == 0, again.stderr[-3000:]
     res2 = json_line(again.stdout)
     assert res2["skipped"] == 6 and all(f["skipped"] for f in res2["frames"])
-    assert res2["workers"] == []  # nothing left to do: no cluster started
+    assert res2["workers"] == [] and "seconds_load" not in res2  # nothing to do: no cluster
 
     # a frame re-baked (another source): only that one is converted again
     rebaked = os.path.join(os.path.dirname(pattern), "m_0002.vdb")
