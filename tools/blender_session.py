@@ -77,8 +77,9 @@ def compile_ahead(modes, threads=0, general=True, lod=None) -> list:
     wait_for_kernels) instead of compiling them too. ``general``: the render's scene may need
     more than a plain fog volume's kernels (warmup.jobs_for). ``lod``: a LOD this process
     imports, compiled there first (the import loads it: pipeline.convert_steps' ``ready``),
-    where this process has the more to compile (render_setup.lod_ahead). Returns the jobs
-    started. Call after start()."""
+    where this process has more to compile than the render (the demo: three LODs and their
+    field errors; a reference render's reader and LOD take as long as its render kernels, so
+    it gains nothing there). Returns the jobs started. Call after start()."""
     warmup = importlib.import_module(f"{MODULE}.kernels.warmup")
     service = addon_module("gaussvdb_addon.engine.warmup_service")
     first = [f"lod:{lod}"] if lod else []

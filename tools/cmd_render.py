@@ -37,7 +37,6 @@ from render_setup import (  # noqa: E402, F401
     check_format,
     convert_options,
     index_box_world,
-    lod_ahead,
     quiet_render,
     stdout_to_stderr,
     voxel_box,
@@ -136,7 +135,7 @@ def render(args) -> dict:
 
     check_header(args.file)  # a missing file or not a .vdb file: refused before Blender starts
     bpy = start()  # then the grid checks read with the extension's kernels (compiled once)
-    compile_ahead([args.mode], args.threads, beyond_plain_fog(args), lod_ahead(args))
+    compile_ahead([args.mode], args.threads, beyond_plain_fog(args))
     grid = cli_grids.choose_grid(args.file, args.grid, args.vector_magnitude)
     if args.color_grid:
         cli_grids.check_color_grid(args.file, args.color_grid, args.vector_magnitude)

@@ -23,7 +23,6 @@ from render_setup import (
     check_format,
     convert_options,
     index_box_world,
-    lod_ahead,
     quiet_render,
 )
 
@@ -91,7 +90,7 @@ def prepare(args, known=None) -> dict:
 
     pat, frames, inside = frames_of(args)
     bpy = start()  # first: the file checks read with the extension's kernels (one compile)
-    compile_ahead([args.mode], args.threads, beyond_plain_fog(args), lod_ahead(args))
+    compile_ahead([args.mode], args.threads, beyond_plain_fog(args))
     grid = choose_grid(pat, inside, args)
     importer = addon_module("gaussvdb_addon.io.importer")
     sequence_import = addon_module("gaussvdb_addon.io.sequence_import")

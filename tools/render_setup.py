@@ -39,17 +39,6 @@ def beyond_plain_fog(args) -> bool:
                 or getattr(args, "color_grid", None))
 
 
-def lod_ahead(args):
-    """The LOD the render's second process compiles before the render's own kernels
-    (blender_session.compile_ahead): a reference render's, whose kernels are fewer than the
-    reader's and the LOD's this process compiles (the two then take about as long); else None."""
-    from blender_session import kernels_module
-
-    table = kernels_module("render.devices.modes")
-    spec = table.spec(args.mode)
-    return args.lod if spec.draws == table.VOXELS and spec.drawn_as is None else None
-
-
 def world_box(obj):
     import numpy as np
 
