@@ -9,6 +9,7 @@ import sys
 from conftest import ROOT
 
 CLI = [sys.executable, os.path.join(ROOT, "tools", "cli.py"), "warmup"]
+SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
 
 # a later process: the kernels under the render command's identity, the same job, numba's own
 # per-dispatcher counts of cache hits and misses (a miss is a compile)
@@ -38,6 +39,16 @@ def _env(cache):
     env = dict(os.environ, GAUSSVDB_CACHE_DIR=str(cache))
     env.pop("NUMBA_CACHE_DIR", None)
     return env
+
+
+def _run_cold(cmd, cache):
+    """``cmd`` on the cache root ``cache``: (its last stdout line as JSON, the warm-up's status,
+    the warm-up's folder) of the render command's identity."""
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=_env(cache))
+    assert r.returncode == 0, r.stderr[-3000:]
+    warm = cache / "bl_ext.user_default.gaussvdb" / "warmup"
+    return (json.loads(r.stdout.strip().splitlines()[-1]),
+            json.loads((warm / "status.json").read_text()), warm)
 
 
 def test_unknown_job_is_one_line(tmp_path):
@@ -76,15 +87,9 @@ def test_render_on_an_empty_cache_compiles_its_render_kernels_in_a_second_proces
     reference frame compiles ~10 s here)."""
     cache = tmp_path / "kernels"
     out = tmp_path / "x.png"
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "cli.py"), "render",
-                        os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb"),
-                        "--mode", "reference", "--size", "32x24", "--threads", "2",
-                        "--out", str(out), "--json"],
-                       capture_output=True, text=True, timeout=900, env=_env(cache))
-    assert r.returncode == 0, r.stderr[-3000:]
-    stats = json.loads(r.stdout.strip().splitlines()[-1])
-    warm = cache / "bl_ext.user_default.gaussvdb" / "warmup"
-    status = json.loads((warm / "status.json").read_text())
+    stats, status, warm = _run_cold(
+        [sys.executable, os.path.join(ROOT, "tools", "cli.py"), "render", SAMPLE, "--mode",
+         "reference", "--size", "32x24", "--threads", "2", "--out", str(out), "--json"], cache)
     assert status["jobs"] == ["render:reference"] and status["state"] == "done", status
     assert any(p.name == "render-reference.done" for p in warm.rglob("*.done"))
     assert stats["seconds_compile"] < 2.0 and out.is_file()
@@ -136,13 +141,8 @@ def test_an_import_on_an_empty_cache_compiles_the_field_error_in_a_second_proces
     status and marker say so), and the import loads them from there rather than compiling
     them too (numba's cache hits, no miss, in the error's module)."""
     cache = tmp_path / "kernels"
-    r = subprocess.run([sys.executable, "-c", IMPORT % {
-        "root": ROOT, "file": os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")}],
-        capture_output=True, text=True, timeout=900, env=_env(cache))
-    assert r.returncode == 0, r.stderr[-3000:]
-    got = json.loads(r.stdout.strip().splitlines()[-1])
-    warm = cache / "bl_ext.user_default.gaussvdb" / "warmup"
-    status = json.loads((warm / "status.json").read_text())
+    got, status, _warm = _run_cold([sys.executable, "-c", IMPORT % {"root": ROOT, "file": SAMPLE}],
+                                   cache)
     assert status["jobs"] == ["error"] and status["state"] == "done", status
     assert got["nrmse"] is not None and 0.0 < got["nrmse"] < 1.0, got
     assert got["hits"] > 0 and got["misses"] == 0, got
