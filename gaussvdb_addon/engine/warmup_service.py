@@ -83,9 +83,11 @@ def compile_ahead(jobs, threads=0) -> list:
 
 
 def ready(jobs) -> None:
-    """kernels.pipeline.convert_steps' ``ready``: wait for the jobs a warm-up process started by
-    this one compiles now (background mode; the UI's import waited before it began)."""
-    wait(jobs)
+    """kernels.pipeline.convert_steps' ``ready``: in background mode, wait for the jobs a warm-up
+    process started by this one compiles now. Nothing in the UI: its modal import waited before
+    it began, and nothing else there may wait on a process without progress and Esc."""
+    if background():
+        wait(jobs)
 
 
 def compile_here(jobs=None) -> dict:
