@@ -14,8 +14,10 @@ registration set, and writes its progress to a JSON status file; a finished job 
     warmup_service.compile_ahead(["error"])     # background mode: a second process compiles these
     warmup_service.stop()                       # unregister and Blender's exit (atexit)
 
-Background mode (``blender -b``, the bpy module, scripts) never starts one: those compile in
-their own process as before (``needed`` says no job is awaited there). Plain Python except
+Background mode (``blender -b``, the bpy module, scripts) starts no warm-up of its own: it
+compiles in its own process (``needed`` says no job is awaited there), except what
+``compile_ahead`` gives a second process on a cold cache (an import's field error, the command
+line's render kernels), which ``wait`` and ``ready`` then join. Plain Python except
 ``register_extra``/``unregister_extra`` and the timer (bpy).
 """
 
