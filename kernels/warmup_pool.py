@@ -35,6 +35,14 @@ def _worker_command(cache_root, nice) -> list:
             "--nice", str(nice)]
 
 
+def environment() -> dict:
+    """This process's environment with its module path as PYTHONPATH: a child of the same
+    Python finds numpy, numba (in Blender: the extension's wheels) and blosc where this one does."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
+    return env
+
+
 def serve(run_job, stdin=None, stdout=None) -> int:
     """A worker's loop: ``run_job(name)`` (its seconds) for each job name read, one JSON line
     answered per job ({"job", "seconds"} or {"job", "error"}); returns at the end of the input."""
@@ -59,7 +67,7 @@ class _Worker:
         self.job = None
         # (stderr: the coordinator's, so a worker's failure reaches its log)
         self.proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     text=True, bufsize=1)
+                                     text=True, bufsize=1, env=environment())
         threading.Thread(target=self._read, args=(answers,), daemon=True).start()
 
     def _read(self, answers):

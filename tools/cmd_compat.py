@@ -2,7 +2,7 @@
 Blender (4.5 LTS, its own environment `.venv-compat` from requirements-compat.txt, set up by the
 launcher): builds this platform's zip for that Python and runs tests/compat/run_compat.py there,
 which installs the zip into a fresh user folder and checks import, F12 on both devices, a sequence
-frame, save/reload and the import's rollback.
+frame, save/reload, the import's rollback and Compile Now's worker processes.
 
 `--python` runs it in another environment (e.g. the main one's `.venv/bin/python`); `--user DIR`
 keeps the user folder, so a second run reuses the compiled kernels (the warm-cache figures)."""

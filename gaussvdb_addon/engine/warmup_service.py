@@ -29,7 +29,7 @@ import threading
 import time
 
 from ... import kernels
-from ...kernels import cachedir, warmup
+from ...kernels import cachedir, warmup, warmup_pool
 
 WarmupError = warmup.WarmupError
 POLL_SECONDS = 0.25
@@ -130,13 +130,6 @@ def _command(jobs, nice=NICE, processes=1) -> list:
             "--processes", str(processes)]
 
 
-def _environment() -> dict:
-    env = dict(os.environ)
-    # numpy, numba (the extension's wheels), blosc: where this Python finds them
-    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
-    return env
-
-
 def start(jobs=None, nice=NICE, processes=None) -> list:
     """Start a warm-up process for the jobs of ``jobs`` (None: all) not compiled yet, in that
     order, stopping a running one first; ``nice``: its priority below this process's (0: the
@@ -156,7 +149,7 @@ def start(jobs=None, nice=NICE, processes=None) -> list:
             kwargs["creationflags"] = subprocess.CREATE_NO_WINDOW | subprocess.BELOW_NORMAL_PRIORITY_CLASS
         with open(_state["log"], "w", encoding="utf-8") as log:
             proc = subprocess.Popen(_command(todo, nice, processes or warmup.default_processes()),
-                                    env=_environment(), stdin=subprocess.DEVNULL,
+                                    env=warmup_pool.environment(), stdin=subprocess.DEVNULL,
                                     stdout=log, stderr=subprocess.STDOUT, close_fds=True, **kwargs)
         _state.update(proc=proc, jobs=list(todo), status=status, error="")
         _start_timer()

@@ -155,3 +155,26 @@ def test_f12_during_a_warmup_waits_and_finishes(bpy_module, scene, service):
     waited = service.last_wait()
     assert waited["jobs"] == jobs and waited["result"] == "done" and waited["seconds"] > 0
     assert warmup.missing(jobs) == [] and _exits(service)
+
+
+def test_compile_now_in_background_mode_compiles_on_worker_processes(bpy_module, service, tmp_path):
+    """Compile Now in background mode (a farm node's set-up): the jobs not compiled yet run on
+    one worker process per core (kernels/warmup_pool.py, the extension's module path handed on)
+    before it returns, and leave their markers."""
+    bpy = bpy_module
+    cachedir = _mod("kernels.cachedir")
+    warmup = _mod("kernels.warmup")
+    cachedir.set_cache_root(str(tmp_path))
+    try:
+        todo = ["lod:low", "lod:merged"]
+        for name in warmup.NAMES:
+            if name not in todo:
+                warmup.mark_done(name)
+        assert warmup.missing() == todo
+        assert "FINISHED" in bpy.ops.gaussvdb.compile_kernels()
+        assert warmup.missing() == []
+        status = warmup.read_status(warmup.status_path())
+        assert status["state"] == "done" and sorted(status["seconds"]) == todo, status
+        assert not service.running()
+    finally:
+        cachedir.set_cache_root(None)

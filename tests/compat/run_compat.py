@@ -288,6 +288,25 @@ def rollback(folder):
     return "nothing left behind: " + msg[:80]
 
 
+def compile_now():
+    """Compile Now in background mode (a farm node's set-up) runs its jobs on worker processes of
+    this Python, which find numba in the installed extension's wheels (the module path handed on):
+    two jobs left to do, both compiled, their markers left."""
+    import bpy
+    from bl_ext.user_default.gaussvdb.kernels import warmup
+
+    todo = ["lod:low", "lod:merged"]
+    for name in warmup.NAMES:
+        if name not in todo:
+            warmup.mark_done(name)
+    assert warmup.missing() == todo, warmup.missing()
+    assert "FINISHED" in bpy.ops.gaussvdb.compile_kernels()
+    assert warmup.missing() == [], warmup.missing()
+    status = warmup.read_status(warmup.status_path())
+    assert sorted(status.get("seconds", {})) == todo, status
+    return f"{len(todo)} jobs on {warmup.default_processes()} worker processes"
+
+
 # -- main -------------------------------------------------------------------------------------
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -345,6 +364,7 @@ def main(argv=None):
         if "REFERENCE" in images:
             suite.check("save and reload the .blend", save_and_reload, tmp, images)
         suite.check("a bad file's import rolls back", rollback, data)
+        suite.check("Compile Now on worker processes", compile_now)
         if gpu_name[0]:
             print(f"GPU device ran on: {gpu_name[0]}")
     finally:
