@@ -23,15 +23,16 @@ import threading
 POLL_SECONDS = 0.25
 
 
-def _package() -> str:
-    """The package the kernels are imported under ('' for plain ``kernels``)."""
+def package() -> str:
+    """The package the kernels are imported under ('' for plain ``kernels``): what
+    ``warmup_boot.py --package`` takes."""
     name = __name__.rsplit(".", 1)[0]  # '<package>.kernels' or 'kernels'
     return name.rsplit(".", 1)[0] if "." in name else ""
 
 
 def _worker_command(cache_root, nice) -> list:
     boot = os.path.join(os.path.dirname(os.path.abspath(__file__)), "warmup_boot.py")
-    return [sys.executable, boot, "--package", _package(), "--serve", "--cache-root", cache_root,
+    return [sys.executable, boot, "--package", package(), "--serve", "--cache-root", cache_root,
             "--nice", str(nice)]
 
 
@@ -62,8 +63,7 @@ def serve(run_job, stdin=None, stdout=None) -> int:
 
 
 class _Worker:
-    def __init__(self, index, command, answers):
-        self.index = index
+    def __init__(self, command, answers):
         self.job = None
         # (stderr: the coordinator's, so a worker's failure reaches its log)
         self.proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -106,8 +106,8 @@ def run(names, processes, progress=None, cancel=None, on_done=None, *, cache_roo
     cancelled, failed = errors
     todo = list(names)
     answers = queue.Queue()
-    workers = [_Worker(i, _worker_command(cache_root, nice), answers)
-               for i in range(max(1, min(processes, len(todo))))]
+    workers = [_Worker(_worker_command(cache_root, nice), answers)
+               for _ in range(max(1, min(processes, len(todo))))]
     seconds, started = {}, 0
     ok = False
     try:

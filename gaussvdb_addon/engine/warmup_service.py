@@ -28,7 +28,6 @@ import sys
 import threading
 import time
 
-from ... import kernels
 from ...kernels import cachedir, warmup, warmup_pool
 
 WarmupError = warmup.WarmupError
@@ -37,12 +36,6 @@ NICE = 10  # the warm-up runs below the UI's priority
 _LOCK = threading.RLock()
 _state = {"proc": None, "jobs": [], "status": "", "log": "", "error": "", "timer": False,
           "size": (0.0, 0)}
-
-
-def package() -> str:
-    """The package the add-on imports its kernels under ('' when they are plain ``kernels``)."""
-    name = kernels.__name__
-    return name.rsplit(".", 1)[0] if "." in name else ""
 
 
 def background() -> bool:
@@ -125,7 +118,7 @@ def _last_line(path) -> str:
 
 def _command(jobs, nice=NICE, processes=1) -> list:
     boot = os.path.join(os.path.dirname(warmup.__file__), "warmup_boot.py")
-    return [sys.executable, boot, "--package", package(), "--cache-root", cachedir.cache_root(),
+    return [sys.executable, boot, "--package", warmup_pool.package(), "--cache-root", cachedir.cache_root(),
             "--jobs", ",".join(jobs), "--status", warmup.status_path(), "--nice", str(nice),
             "--processes", str(processes)]
 
