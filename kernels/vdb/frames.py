@@ -235,17 +235,6 @@ def _inflate_one(j, fn, buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start
     status[i] = 0 if (r == 0 and dlen[i] == nbytes[i]) else 1
 
 
-# Serial and threaded drivers: see leaves._decode_serial.
-@njit(cache=True, nogil=True)
-def _inflate_serial(n, *args):
-    for j in range(n):
-        _inflate_one(j, *args)
-
-
-def _inflate_parallel(n, *args):
-    parallel_for(_inflate_rows, n, *args)
-
-
 @njit(cache=True, nogil=True)
 def _inflate_rows(lo, hi, *args):
     for j in range(lo, hi):
@@ -287,9 +276,10 @@ def zlib_uncompress():
                 raw = np.frombuffer(bytearray(zlib.compress(want)), np.uint8)  # writable, as files map
                 pool = np.zeros(len(want), np.uint8)
                 status = np.ones(1, np.uint8)
-                _inflate_serial(1, fn, raw, np.zeros(1, np.int64), np.zeros(1, np.int64),
-                                np.array([len(raw)], np.int64), np.array([len(want)], np.int64),
-                                pool, np.zeros(1, np.int64), np.zeros(1, _ULONG), status)
+                _inflate_rows(np.int64(0), np.int64(1), fn, raw, np.zeros(1, np.int64),
+                              np.zeros(1, np.int64), np.array([len(raw)], np.int64),
+                              np.array([len(want)], np.int64), pool, np.zeros(1, np.int64),
+                              np.zeros(1, _ULONG), status)
                 if status[0] != 0 or pool.tobytes() != want:
                     fn = None
             except Exception:
@@ -298,15 +288,14 @@ def zlib_uncompress():
     return _zlib_state[0]
 
 
-def inflate_all(buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start, parallel):
-    """Compiled zlib pass over chunks ``ids``; returns per-leaf status (1 = do it in Python), or
-    None when no C zlib is usable here."""
+def inflate_all(buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start, threads=None):
+    """Compiled zlib pass over chunks ``ids`` on ``threads`` (parallel_for's); returns per-leaf
+    status (1 = do it in Python), or None when no C zlib is usable here."""
     fn = zlib_uncompress()
     if fn is None:
         return None
     n = len(chunk_off)
     status = np.ones(n, np.uint8)
-    run = _inflate_parallel if parallel else _inflate_serial
-    run(len(ids), fn, buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start, np.zeros(n, _ULONG),
-        status)
+    parallel_for(_inflate_rows, len(ids), fn, buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start,
+                 np.zeros(n, _ULONG), status, threads=threads)
     return status

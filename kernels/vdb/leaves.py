@@ -21,8 +21,10 @@ except ImportError:  # pragma: no cover
 
 from ..jit import njit, parallel_for
 
-# Below this many leaves (or zip chunks) the loops run serially: starting threads would cost more
-# than it saves, and on a busy machine the last chunk can wait a whole time slice for its thread.
+# Below this many leaves (or zip chunks) the loops run on the calling thread: starting threads
+# would cost more than it saves, and on a busy machine the last chunk can wait a whole time slice
+# for its thread. The same compiled kernel either way (a warm-up's small file loads what a large
+# file runs).
 PARALLEL_LEAVES = 512
 
 _POPC8 = np.array([bin(i).count("1") for i in range(256)], np.int64)
@@ -376,22 +378,15 @@ def _decode_task(c, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbyt
 _TASK = 32  # leaves per task (one set of scratch buffers each)
 
 
-# Two drivers: small grids decode in one call on the calling thread, big ones in chunks of tasks
-# on threads (parallel_for).
-@njit(cache=True, nogil=True)
-def _decode_serial(ntasks, *args):
-    for c in range(ntasks):
-        _decode_task(c, *args)
-
-
-def _decode_parallel(ntasks, *args):
-    parallel_for(_decode_rows, ntasks, *args)
-
-
 @njit(cache=True, nogil=True)
 def _decode_rows(lo, hi, *args):
     for c in range(lo, hi):  # leaves are independent: any thread count gives the same result
         _decode_task(c, *args)
+
+
+def threads_for(n):
+    """parallel_for's threads for a loop over n leaves or chunks: this one below PARALLEL_LEAVES."""
+    return None if n >= PARALLEL_LEAVES else 1
 
 
 _HALF_BITS = HALF_LUT.view(np.uint32)
@@ -435,11 +430,11 @@ def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
     status = np.zeros(n, np.uint8)
 
     def run(ids, pool, pool_start):
-        decode = _decode_parallel if len(ids) >= PARALLEL_LEAVES else _decode_serial
-        decode((len(ids) + _TASK - 1) // _TASK, cur.arr, pool, kind, _HALF_BITS, chunk_off,
-               chunk_len, pool_start, nbytes, ids, masks, t["codes"], t["off0"], t["off1"],
-               t["seloff"], bg, et.full.itemsize, out.view(np.uint32).reshape(n, 512 * et.ncomp),
-               out, magnitudes, status)
+        parallel_for(_decode_rows, (len(ids) + _TASK - 1) // _TASK, cur.arr, pool, kind, _HALF_BITS,
+                     chunk_off, chunk_len, pool_start, nbytes, ids, masks, t["codes"], t["off0"],
+                     t["off1"], t["seloff"], bg, et.full.itemsize,
+                     out.view(np.uint32).reshape(n, 512 * et.ncomp), out, magnitudes, status,
+                     threads=threads_for(len(ids)))
 
     for a in range(0, n, BLOCK_LEAVES):
         ids = np.arange(a, min(n, a + BLOCK_LEAVES))
@@ -464,7 +459,7 @@ def _inflate(cur, t, packed, pool, pool_start, nbytes, flags, et):
     left = packed
     if flags & COMPRESS_ZIP and len(packed):
         st = inflate_all(cur.arr, packed, t["chunk_off"], t["chunk_len"], nbytes, pool, pool_start,
-                         len(packed) >= PARALLEL_LEAVES)
+                         threads_for(len(packed)))
         if st is not None:
             left = packed[st[packed] != 0]
     _decompress_all(cur, t, left, pool, pool_start, flags, et)

@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-from conftest import ROOT
+from conftest import DATA_DIR, ROOT
 
 CLI = [sys.executable, os.path.join(ROOT, "tools", "cli.py"), "warmup"]
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
@@ -146,3 +146,46 @@ def test_an_import_on_an_empty_cache_compiles_the_field_error_in_a_second_proces
     assert status["jobs"] == ["error"] and status["state"] == "done", status
     assert got["nrmse"] is not None and 0.0 < got["nrmse"] < 1.0, got
     assert got["hits"] > 0 and got["misses"] == 0, got
+
+
+# the import's warm-up jobs, then imports of large files in the same process: what numba compiles
+AFTER_WARM_UP = """
+import json, sys
+sys.path.insert(0, %(root)r)
+from kernels import pipeline, warmup
+warmup.run(["reader", "lod:medium", "error"])
+from numba.core import event
+compiled = []
+
+class Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Count())
+leaves = [len(g.leaf_origins) for f in %(files)r for g in pipeline.read_grids(f)[0]]
+for f in %(files)r:
+    pipeline.convert_file(f, lods=("medium",), compute_error=True)
+print(json.dumps({"compiled": compiled, "leaves": leaves}))
+"""
+
+
+def test_the_import_s_warm_up_covers_large_files(tmp_path):
+    """The warm-up's files are small (a few dozen leaves); a real grid's import (thousands of
+    leaves: the reader's threads, the field error's lattice classes) runs no kernel they left
+    uncompiled."""
+    import numpy as np
+
+    from tests.vdb_fixtures import write_grid
+
+    x, y, z = np.meshgrid(*(np.linspace(-1.0, 1.0, 80),) * 3, indexing="ij")
+    fog = write_grid(tmp_path / "fog.vdb", np.exp(-3.0 * (x * x + y * y + z * z)), tolerance=1e-3)
+    files = [str(fog)] + [f for f in (os.path.join(DATA_DIR, "teapot_ls_256.vdb"),) if os.path.exists(f)]
+    r = subprocess.run([sys.executable, "-c", AFTER_WARM_UP % {"root": ROOT, "files": files}],
+                       capture_output=True, text=True, timeout=900, env=_env(tmp_path / "cache"))
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    assert min(got["leaves"]) >= 512, got["leaves"]
+    assert got["compiled"] == [], got["compiled"]

@@ -111,8 +111,8 @@ def test_zlib_through_ctypes_matches_python_zlib():
     nbytes = np.array([len(c) for c in chunks], np.int64)
     start = np.cumsum(nbytes) - nbytes
     pool = np.zeros(int(nbytes.sum()), np.uint8)
-    for parallel in (False, True):
-        st = frames.inflate_all(buf, np.arange(40), offs, lens, nbytes, pool, start, parallel)
+    for threads in (1, 2):
+        st = frames.inflate_all(buf, np.arange(40), offs, lens, nbytes, pool, start, threads)
         assert st[7] == 1 and st.sum() == 1
         for i in range(40):
             if i != 7:
@@ -182,3 +182,28 @@ def test_serial_and_parallel_decode_agree(variants, monkeypatch):
     serial = [_arrays(read_vdb(p)) for p in big]
     monkeypatch.setattr(leaves, "PARALLEL_LEAVES", 1)
     assert [_arrays(read_vdb(p)) for p in big] == serial
+
+
+def _overloads():
+    from numba.core.registry import CPUDispatcher
+
+    return {(m.__name__, name): len(d.overloads) for m in (leaves, frames, tree)
+            for name, d in vars(m).items() if isinstance(d, CPUDispatcher)}
+
+
+@pytest.mark.skipif(not os.path.exists(os.path.join(DATA, "teapot_ls_256.vdb")),
+                    reason="needs the shared data")
+def test_a_large_file_decodes_with_the_kernels_the_warm_up_s_small_file_loads(tmp_path):
+    """A large grid (over PARALLEL_LEAVES leaves: threads) runs the compiled kernels a small one
+    (the warm-up's file, on the calling thread) does: no kernel of its own to compile after a
+    warm-up."""
+    from kernels import warmup
+
+    teapot = os.path.join(DATA, "teapot_ls_256.vdb")
+    big = [transcode(teapot, str(tmp_path / f"{c}.vdb"), compression=c) for c in ("zip", "blosc")]
+    warmup.JOBS["reader"]()
+    before = _overloads()
+    for p in big:
+        g = read_vdb(p).grids[0]
+        assert len(g.leaf_origins) >= leaves.PARALLEL_LEAVES and g.active_voxels > 0
+    assert _overloads() == before
