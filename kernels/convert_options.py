@@ -29,7 +29,8 @@ def split_names(text) -> list | None:
 @dataclass(frozen=True)
 class ConvertOptions:
     grids: tuple | None = None  # grid names ('a, b' is split); None: pipeline.default_grids
-    lods: tuple = (lod_names.DEFAULT,)  # LOD presets, any order (the pipeline orders them)
+    lods: tuple = (lod_names.DEFAULT,)  # LOD presets, any order (the pipeline orders them); (): none
+    # (the grid alone: an object the reference mode draws from its voxels)
     weights: str = lod_names.WEIGHTS[0]  # how sizes and amplitudes are set (lod_names.WEIGHTS)
     level_set_band: bool = True  # level sets: only Gaussians whose voxels straddle the surface
     vector_magnitude: bool = False  # vec3 grids (velocity) as their magnitude

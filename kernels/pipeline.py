@@ -3,6 +3,7 @@ its sequences, `gaussvdb convert` and `render`, the benchmarks).
 
     cgs = convert_file("smoke.vdb", lods=("low", "medium"), progress=print, cancel=None)
     cgs[0].lods[1].gset                       # the Medium GaussianSet of the first grid
+    convert_file("smoke.vdb", lods=())        # the grids' figures alone: no Gaussians
     convert_file("fire.vdb", ["density"], color_grid="temperature")  # + gset.color_values
     convert_file("smoke.vdb", options=ConvertOptions(lods=("adaptive",), tolerance=0.01))
 
@@ -71,15 +72,14 @@ def default_grids(names):
 
 
 def order_lods(lods) -> list:
-    """LOD names in the kernels' preset order (coarse first), validated, duplicates dropped."""
+    """LOD names in the kernels' preset order (coarse first), validated, duplicates dropped. None
+    (``()``): the grids alone, no Gaussians (what the reference mode draws: their voxels)."""
     if isinstance(lods, str):
         lods = [lods]
     lods = list(lods or ())
     bad = [name for name in lods if name not in lod_names.PRESETS]
     if bad:
         raise ConversionError(f"unknown LOD preset {bad[0]!r}; choose from {', '.join(lod_names.PRESETS)}")
-    if not lods:
-        raise ConversionError("choose at least one LOD preset")
     return [p for p in lod_names.PRESETS if p in lods]
 
 

@@ -109,6 +109,9 @@ class GAUSSVDB_OT_import_vdb(bpy.types.Operator, ImportHelper):
         from ..gaussvdb_addon.io import importer, sequence_import
         from ..kernels import warmup
 
+        if not self.lods:  # (scripts may import a grid alone: importer.import_vdb(path, lods=()))
+            self.report({"ERROR"}, "choose at least one LOD preset")
+            return {"CANCELLED"}
         paths = importer.selected_paths(self.filepath, self.directory, self.files)
         big = sum(os.path.getsize(p) for p in paths if os.path.isfile(p)) >= MODAL_MIN_BYTES
         if self.use_sequence and sequence_import.any_sequence(paths):

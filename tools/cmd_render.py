@@ -10,7 +10,8 @@ GAUSSVDB engine (``bpy.ops.render.render(write_still=True)``) and writes the ima
 the transfer function's value range (the same colours for every file of a batch). Prints a
 summary, or with --json one JSON document and nothing else on stdout (Blender's own lines go to
 stderr): seconds_render, seconds_sync, seconds_import, width, height, mode, gaussians,
-threads, lod, grid, colormap, value_range, out, warnings, device (the one that drew: GPU falls back to CPU
+threads, lod (null for a file in reference mode: it draws the voxels and builds no Gaussians),
+grid, colormap, value_range, out, warnings, device (the one that drew: GPU falls back to CPU
 with a warning where no GPU context can be had) and gpu (the GPU's name, or null). Warnings
 (a log scale over values <= 0) go to stderr.
 Options and the grid are checked before Blender starts; a refusal or a failed render is one line
@@ -58,7 +59,8 @@ def parse(argv):
                    "active voxels)")
     p.add_argument("--vector-magnitude", action="store_true",
                    help="vec3 grids (velocity) count as their magnitude, as in the importer")
-    p.add_argument("--lod", default=lod_names.DEFAULT, choices=PRESETS, help="LOD preset")
+    p.add_argument("--lod", default=lod_names.DEFAULT, choices=PRESETS,
+                   help="LOD preset (--mode reference draws the voxels of a file: no LOD is built)")
     p.add_argument("--mode", default=mode_names.DEFAULT, choices=mode_names.NAMES)
     p.add_argument("--colormap", default="viridis", type=str.lower, choices=colormap_names())
     p.add_argument("--size", default=(640, 480), type=cli_errors.size, help="WxH pixels (640x480)")
@@ -143,9 +145,12 @@ def render(args) -> dict:
     image_file = addon_module("gaussvdb_addon.engine.image_file")
     check_format(image_file, args.out)
     bpy.ops.wm.read_homefile(use_empty=True)
+    options = convert_options(args, grid)
+    if args.mode == "reference":  # it draws the voxels: no Gaussians to build (nor to compile)
+        options = options.replace(lods=())
     t0 = time.perf_counter()
     try:
-        objs = importer.import_vdb(os.path.abspath(args.file), options=convert_options(args, grid),
+        objs = importer.import_vdb(os.path.abspath(args.file), options=options,
                                    collection=bpy.context.scene.collection)
     except importer.VDBImportError as err:
         raise InputError(f"{args.file}: {err}") from err
@@ -153,7 +158,8 @@ def render(args) -> dict:
     lo, hi = voxel_box(args.file, grid)
     scene = build_scene(bpy, objs, args, box=lambda obj: index_box_world(obj, lo, hi))
     stats = quiet_render(image_file, scene, os.path.abspath(args.out))
-    stats.update(seconds_import=seconds_import, lod=args.lod, grid=grid, colormap=args.colormap,
+    stats.update(seconds_import=seconds_import, lod=options.lods[0] if options.lods else None,
+                 grid=grid, colormap=args.colormap,
                  color_grid=args.color_grid,
                  file=os.path.abspath(args.file), out=os.path.abspath(args.out))
     return stats
@@ -188,8 +194,9 @@ def main(argv) -> int:
     if args.json:
         print(json.dumps(stats, sort_keys=True))
     else:
+        drawn = f"{stats['gaussians']:,} Gaussians ({stats['lod']})" if stats["lod"] else "voxels"
         print(f"{stats['out']}: {stats['width']}x{stats['height']} {stats['mode']}, "
-              f"{stats['gaussians']:,} Gaussians ({stats['lod']}), sync {stats['seconds_sync']:.2f} s, "
+              f"{drawn}, sync {stats['seconds_sync']:.2f} s, "
               f"render {stats['seconds_render']:.2f} s on "
               f"{stats['gpu'] if stats.get('gpu') else str(stats['threads']) + ' threads'}")
     return 0

@@ -122,9 +122,13 @@ def build_scene(bpy, objs, args, box=None):
         sun.rotation_euler = (0.5, -0.4, 0.0)  # its light travels along its local -Z
         scene.collection.objects.link(sun)
     clips = clip_collection(bpy, scene, args)
+    from blender_session import addon_module
+
+    schema = addon_module("gaussvdb_addon.io.schema")
     for o in objs:
-        o.gaussvdb.render_lod = args.lod
-        o.gaussvdb.viewport_lod = args.lod
+        if args.lod in schema.lod_names(o):  # (a grid imported alone, for reference mode, holds none)
+            o.gaussvdb.render_lod = args.lod
+            o.gaussvdb.viewport_lod = args.lod
         o.gaussvdb.clip_collection = clips
         o.gaussvdb.level_set_style = args.level_set.upper()
         o.gaussvdb.shading = args.shading.upper()

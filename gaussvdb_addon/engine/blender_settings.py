@@ -64,8 +64,17 @@ def background(scene):
 
 
 def world_box_diagonal(obj, matrix_world):
-    """Length of the diagonal of an object's bounding box in world space (as the CLI frames it)."""
-    corners = np.array([tuple(c) for c in obj.bound_box], np.float64)
+    """Length of the diagonal of an object's bounding box in world space (as the CLI frames it);
+    a grid imported alone (no points): its leaves' box."""
+    from ..io import schema
+
+    st = getattr(obj.original, "gaussvdb", None)
+    if st is not None and st.is_gaussvdb and not schema.lod_names(obj.original):
+        lo, hi = tuple(st.leaf_box_min), tuple(st.leaf_box_max)
+        corners = np.array([(x, y, z) for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])], np.float64)
+    else:
+        corners = np.array([tuple(c) for c in obj.bound_box], np.float64)
     mw = np.asarray(matrix_world, np.float64)
     wc = np.c_[corners, np.ones(8)] @ mw.T
     return float(np.linalg.norm(wc[:, :3].max(0) - wc[:, :3].min(0)))

@@ -317,7 +317,8 @@ class SceneSync:
             self.entries[name] = e
             self.reads += 1
         e.frame = frame
-        if need_grid and e.grid is None and e.gaussians is not None:
+        # (a grid imported alone has no Gaussians: its voxels are all it is drawn from)
+        if need_grid and e.grid is None and (e.gaussians is not None or not lod):
             e.grid = source_grid(orig, frame.path if frame is not None else None)
             if orig.gaussvdb.color_grid:
                 e.color_grid = source_grid(orig, frame.path if frame is not None else None,
@@ -351,6 +352,11 @@ class SceneSync:
             lod = schema.active_lod(orig, render=not self.viewport)
             # splat mode draws level sets from their voxels (kernels/render/splat_scene)
             need_grid = mode == "reference" or (mode == "splat" and gs.grid_class == "level_set")
+            if not lod and mode != "reference":
+                msg = f"{orig.name}: imported without Gaussians, drawn in Reference mode only"
+                if msg not in self.warnings:
+                    self.warnings.append(msg)
+                continue
             e = self._entry(ob, lod, need_grid, depsgraph)
             seen.add(orig.name)
             mw = np.array(inst.matrix_world, np.float64)
@@ -404,8 +410,10 @@ class SceneSync:
     @staticmethod
     def _color(gs, e):
         """RenderObject's colour-grid arguments of an object (none without a colour grid, or when
-        its Gaussians carry no colour values: an older file, a Geometry Nodes edit)."""
-        if not gs.color_grid or getattr(e.gaussians, "color_values", None) is None:
+        its Gaussians carry no colour values: an older file, a Geometry Nodes edit; a grid
+        imported alone: its colour grid's voxels)."""
+        held = e.color_grid if e.gaussians is None else getattr(e.gaussians, "color_values", None)
+        if not gs.color_grid or held is None:
             return {}
         return dict(color_tf=color_transfer(gs), color_grid=e.color_grid)
 

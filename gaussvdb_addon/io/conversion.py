@@ -40,7 +40,7 @@ def convert_steps(filepath, options=DEFAULTS, skipped=None):
     from ..engine import kernel_cache, warmup_service
 
     kernel_cache.announce("vdb", "lod")
-    if options.compute_error and not kernel_cache.compiled("lod"):
+    if options.compute_error and options.lods and not kernel_cache.compiled("lod"):
         # a new cache (an install, an update): the field error compiles beside the reader and LODs
         warmup_service.compile_ahead(["error"])
     out = yield from pipeline.convert_steps(filepath, import_options(options), skipped,

@@ -101,9 +101,9 @@ def _settings_to_object(obj, cg, stats, options):
         figures["sequence"] = cg.sequence["figures"]
     lod_figures.store(st, figures)
     names = [cl.name for cl in cg.lods]
-    # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
-    st.viewport_lod = names[0]
-    st.render_lod = names[-1]
+    if names:  # Like the Subdivision modifier: the viewport shows the coarsest LOD held, renders the finest.
+        st.viewport_lod = names[0]
+        st.render_lod = names[-1]
 
 
 def build_objects(converted, collection=None, options=DEFAULTS) -> list:

@@ -5,6 +5,7 @@ Scripts, the operator, the Reload button and the CLI all call these:
     objs = import_vdb("smoke.vdb", lods=("low", "medium"))       # -> list of Objects
     import_vdb("fire.vdb", ["density"], color_grid="temperature")  # coloured by temperature
     import_vdb("smoke.vdb", options=ConvertOptions(lods=("adaptive",), tolerance=0.01))
+    import_vdb("smoke.vdb", lods=())           # the grid alone: drawn in Reference mode only
     gset = gaussian_set_from_object(objs[0], "medium")            # -> kernels.lod.GaussianSet
 
 The options are one ``ConvertOptions`` (kernels/convert_options.py); the keywords of
@@ -241,8 +242,9 @@ def reload_object(obj, progress=None, cancel=None, max_bytes=None, compute_error
         st.leaf_box_min = new.gaussvdb.leaf_box_min
         st.leaf_box_max = new.gaussvdb.leaf_box_max
         names = lod_names(obj)
-        st.viewport_lod = viewport if viewport in names else names[0]
-        st.render_lod = render if render in names else names[-1]
+        if names:
+            st.viewport_lod = viewport if viewport in names else names[0]
+            st.render_lod = render if render in names else names[-1]
         if not moved:
             obj.matrix_world = Matrix(cg.index_to_world.tolist())
     finally:

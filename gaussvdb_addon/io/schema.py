@@ -162,8 +162,11 @@ DEFAULT_LODS = ["medium"]  # what an object that names no LOD (layout 0) holds
 
 
 def lod_names(obj) -> list:
-    """The LODs the object holds, in ``gs_lod`` order."""
-    return [n for n in obj.gaussvdb.lods.split(",") if n] or list(DEFAULT_LODS)
+    """The LODs the object holds, in ``gs_lod`` order; none for a grid imported alone (no
+    Gaussians: the reference mode draws its voxels)."""
+    st = obj.gaussvdb
+    names = [n for n in st.lods.split(",") if n]
+    return names or (list(DEFAULT_LODS) if int(getattr(st, "layout_version", 0)) == 0 else [])
 
 
 def lod_index(obj, lod) -> int:
@@ -177,13 +180,16 @@ def lod_index(obj, lod) -> int:
 
 
 def active_lod(obj, render=False) -> str:
-    """The LOD the engine draws: the object's Render LOD for final renders, else Viewport."""
+    """The LOD the engine draws: the object's Render LOD for final renders, else Viewport; ''
+    when it holds none."""
     st = obj.gaussvdb
+    names = lod_names(obj)
+    if not names:
+        return ""
     try:
         name = st.render_lod if render else st.viewport_lod
     except (TypeError, ValueError):  # an enum whose items no longer hold the stored name
         name = ""
-    names = lod_names(obj)
     return name if name in names else (names[-1] if render else names[0])
 
 
@@ -275,11 +281,14 @@ def gaussian_set_from_object(obj, lod=None, depsgraph=None):
 
     ``lod``: a name ('medium'), a gs_lod index, or None (the object's Render LOD; the engine passes
     ``active_lod(obj, render)``). With ``depsgraph`` the evaluated object is read, so Geometry Nodes
-    edits show up (moved points move their Gaussians: the centre is ``position``).
+    edits show up (moved points move their Gaussians: the centre is ``position``). None for a
+    grid imported alone (no LOD held).
     """
     orig = getattr(obj, "original", None) or obj
     st = orig.gaussvdb
     version = check_version(orig)
+    if not lod_names(orig):
+        return None
     if lod is None:
         lod = active_lod(orig, render=True)
     idx = lod_index(orig, lod)

@@ -99,6 +99,8 @@ def convert_sequence(path, numbers=None, options=DEFAULTS, progress=None, cancel
     ``options``: a ConvertOptions (its tolerance is the shown frame's; frames converted later
     use the object's settings, kept by build_objects, with the default tolerance). ``known``:
     {frame number: kernels.sequence.frame_figures} read elsewhere, not read again."""
+    if not options.lods:
+        raise VDBImportError("a sequence needs a LOD preset: its frames are drawn as Gaussians")
     pat, present = sequence_of(path, numbers)
     skipped = [] if skipped is None else skipped
     wanted = None if options.grids is None else list(options.grids)

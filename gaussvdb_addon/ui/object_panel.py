@@ -6,6 +6,7 @@ import math
 import bpy
 
 from ...kernels import lod_names
+from ..io import schema
 from ..properties import lod_figures
 
 FIGURE_COLUMNS = ("LOD", "Gaussians", "Memory", "NRMSE", "Time")
@@ -76,10 +77,13 @@ class GAUSSVDB_PT_object(bpy.types.Panel):
         info = col.column(align=True)
         info.label(text=f"Class: {settings.grid_class.replace('_', ' ')}"
                         f" ({settings.value_type or 'float'}), {settings.weights} weights")
-        info.label(text=f"LODs held: {settings.lods.replace(',', ', ')}")
-        col = layout.column(align=True)
-        col.prop(settings, "viewport_lod", text="Viewport")
-        col.prop(settings, "render_lod", text="Render")
+        if schema.lod_names(context.object):
+            info.label(text=f"LODs held: {settings.lods.replace(',', ', ')}")
+            col = layout.column(align=True)
+            col.prop(settings, "viewport_lod", text="Viewport")
+            col.prop(settings, "render_lod", text="Render")
+        else:
+            info.label(text="No Gaussians: drawn in Reference mode only", icon="INFO")
         layout.operator("gaussvdb.reload", icon="FILE_REFRESH")
         if settings.grid_class == "level_set":
             layout.prop(settings, "level_set_style")

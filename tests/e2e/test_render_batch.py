@@ -36,18 +36,21 @@ def render_json(*argv):
     return json.loads(proc.stdout)
 
 
-def test_json_is_the_whole_stdout_and_lods_render_the_same_view(bpy_module, tmp_path):
-    """Reference mode draws the voxels: with the camera and density set by the active voxels,
-    not by the LOD's Gaussians, Low and High give the same pixels."""
+def test_json_is_the_whole_stdout_and_reference_mode_builds_no_lod(bpy_module, tmp_path):
+    """Reference mode draws the voxels: the file is imported without Gaussians (no LOD built,
+    whatever --lod says), and its picture is the one of the same grid imported with a LOD
+    (tests/blender/test_grid_alone.py) under the camera and density the active voxels set."""
     images = {}
     for lod in ("low", "high"):
         out = tmp_path / f"{lod}.png"
         stats = render_json(SAMPLE, "--lod", lod, "--mode", "reference", "--size", "64x48",
                             "--out", str(out))
-        assert stats["lod"] == lod and stats["out"] == str(out)
+        assert stats["lod"] is None and stats["gaussians"] == 0 and stats["out"] == str(out)
         images[lod] = read_image(bpy_module, out)
     assert images["low"][..., 3].max() > 0.5  # the smoke is in the picture
     np.testing.assert_array_equal(images["low"], images["high"])
+    stats = render_json(SAMPLE, "--lod", "low", "--size", "16x12", "--out", str(tmp_path / "p.png"))
+    assert stats["lod"] == "low" and stats["gaussians"] > 0  # a Gaussian mode builds its LOD
 
 
 def test_tolerance_reaches_the_adaptive_conversion(tmp_path):

@@ -84,16 +84,16 @@ class CPUDevice(Device):
             m = o.matrix_world
             self.w2i[k] = np.linalg.inv(m)
             self.voxel_world[k] = float(np.prod(np.linalg.norm(m[:3, :3], axis=0))) ** (1.0 / 3.0)
-            bounds = (None if o.gaussians is None else self.gacc.g_bounds[k] if self.gacc is not None
-                      else gaussian_bounds(o.gaussians, scene.support_k))
-            if bounds is not None:
-                (lo, hi), self.index_box[k] = bounds  # centres; the supports' box
+            if o.grid is not None:  # drawn from its voxels: their box, whichever LOD it holds
+                lo = np.asarray(o.grid.bbox_min, np.float64)
+                hi = np.asarray(o.grid.bbox_max, np.float64)
+                self.index_box[k] = lo, hi
+            elif o.gaussians is not None:  # centres; the supports' box
+                (lo, hi), self.index_box[k] = (
+                    self.gacc.g_bounds[k] if self.gacc is not None
+                    else gaussian_bounds(o.gaussians, scene.support_k))
             else:
-                if o.grid is not None:
-                    lo = np.asarray(o.grid.bbox_min, np.float64)
-                    hi = np.asarray(o.grid.bbox_max, np.float64)
-                else:
-                    lo = hi = np.zeros(3)
+                lo = hi = np.zeros(3)
                 self.index_box[k] = lo, hi
             corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                                 for z in (lo[2], hi[2])])
