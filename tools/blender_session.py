@@ -70,20 +70,16 @@ def kernels_module(name: str):
     return importlib.import_module(f"{MODULE}.kernels.{name}" if "bpy" in _STARTED else f"kernels.{name}")
 
 
-def compile_ahead(modes, threads=0, general=True, lod=None) -> list:
+def compile_ahead(modes, threads=0, general=True) -> list:
     """On a cache without the render kernels of ``modes``: compile them now in a second process
-    (the add-on's warmup_service.compile_ahead, under the extension's name) while this one reads
-    the file and builds its LOD; the render then waits for that process (final_render's
-    wait_for_kernels) instead of compiling them too. ``general``: the render's scene may need
-    more than a plain fog volume's kernels (warmup.jobs_for). ``lod``: a LOD this process
-    imports, compiled there first (the import loads it: pipeline.convert_steps' ``ready``),
-    where this process has more to compile than the render (the demo: three LODs and their
-    field errors; a reference render's reader and LOD take as long as its render kernels, so
-    it gains nothing there). Returns the jobs started. Call after start()."""
+    (the add-on's warmup_service.compile_ahead, under the extension's name), in that order, while
+    this one reads the file (and builds its LOD); the render then waits for that process's jobs
+    of its mode (final_render's wait_for_kernels) instead of compiling them too. ``general``: the
+    render's scene may need more than a plain fog volume's kernels (warmup.jobs_for). Returns the
+    jobs started. Call after start()."""
     warmup = importlib.import_module(f"{MODULE}.kernels.warmup")
     service = addon_module("gaussvdb_addon.engine.warmup_service")
-    first = [f"lod:{lod}"] if lod else []
-    return service.compile_ahead(first + warmup.jobs_for(modes=tuple(modes), general=general), threads)
+    return service.compile_ahead(warmup.jobs_for(modes=tuple(modes), general=general), threads)
 
 
 def addon_module(name: str):

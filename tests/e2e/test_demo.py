@@ -1,4 +1,5 @@
-"""`./gaussvdb demo` on the bundled sample: the per-LOD table and one PNG per LOD."""
+"""`./gaussvdb demo` on the bundled sample: the per-LOD table, the voxels' PNG (reference mode)
+and one PNG per LOD with its PSNR against it."""
 
 import json
 import os
@@ -24,4 +25,8 @@ def test_demo_imports_every_lod_and_renders(tmp_path):
     assert 0 < density["high"]["nrmse"] < density["low"]["nrmse"] < 1
     assert "density:" in result["message"] and "field NRMSE" in result["message"]
     pngs = sorted(p.name for p in out.glob("density_*.png"))
-    assert pngs == sorted(f"density_{lod}.png" for lod in density)
+    assert pngs == sorted(f"density_{lod}.png" for lod in [*density, "reference"])
+    assert "the voxels, reference mode" in result["renders"][0]  # the first image
+    db = result["image_psnr"]
+    assert list(db) == list(density) and all(15.0 < v < 60.0 for v in db.values()), db
+    assert db["high"] > db["low"]  # a finer LOD draws the voxels more closely
