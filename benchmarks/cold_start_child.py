@@ -204,6 +204,13 @@ def child_main(argv):
                        functions=ph.counter.functions, **extra), fh)
     sys.stdout.flush()
     sys.stderr.flush()
+    # a second process the add-on started (an import's compile_ahead) stops here, as at a normal
+    # exit (atexit), not on into the next case's timing
+    from blender_session import MODULE
+
+    service = sys.modules.get(f"{MODULE}.gaussvdb_addon.engine.warmup_service")
+    if service is not None:
+        service.stop()
     os._exit(0)  # the figures are written: skip tearing down Blender and numba
 
 

@@ -107,16 +107,16 @@ def _job_lod(name):
 
 
 def _job_error():
-    """The field error an import measures when asked (pipeline.measure_error)."""
-    import numpy as np
-
-    from . import pipeline
-    from .lod.error_lattice import class_tables
+    """The field error an import measures when asked (pipeline.measure_error) of a fog volume and
+    a level set, for Low's Gaussians (one per leaf: on pair lists) and High's (lattice classes, as
+    a real grid's finer LODs have), the sets made by numpy: no LOD kernel compiled here (the
+    import beside compiles those itself)."""
+    from .lod import field_error
+    from .lod.synthetic import full_block_set
 
     for grid in _made_grids():
-        pipeline.convert_lod(grid, "low", compute_error=True)
-    # the tables of a lattice class, which sets this small have none of (a real grid's do)
-    class_tables(np.full((1, 3), 0.5, np.float32), np.ones((1, 3), np.int64), 3.0)
+        for lod, edge in (("low", 8), ("high", 2)):
+            field_error(grid, full_block_set((16, 8, 8), edge, lod))
 
 
 # the modes whose plain scenes (reference: one fog volume; particles: no lights, no surfaces)

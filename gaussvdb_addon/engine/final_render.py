@@ -82,11 +82,15 @@ def register_passes(engine, scene, renderlayer):
 def wait_for_kernels(engine, mode):
     """Before a render loads its kernels: when the background warm-up (warmup_service) compiles
     the ones this mode needs, wait for it (the status says so, Esc stops the render) instead of
-    compiling them here too. Nothing to wait for in background mode (it compiles in-process)."""
+    compiling them here too. In background mode only a second process started by this one
+    (an import's, a command line render's) is waited for, and one compiling none of this mode's
+    kernels is stopped: this render compiles them in-process."""
     from ...kernels import warmup
     from . import warmup_service
 
-    jobs = warmup_service.needed(warmup.jobs_for(modes=(mode,)))
+    wanted = warmup.jobs_for(modes=(mode,))
+    warmup_service.stop_unless(wanted)  # background mode: an import's guess at another mode
+    jobs = warmup_service.needed(wanted)
     if not jobs:
         return
     result = warmup_service.wait(jobs, cancel=engine.test_break, report=lambda text:

@@ -12,12 +12,14 @@ registration set, and writes its progress to a JSON status file; a finished job 
     warmup_service.progress(["reader"])         # {'done': bool, 'failed': '', 'text': ..., ...}
     warmup_service.wait(jobs, cancel=engine.test_break, report=print)  # a render thread's wait
     warmup_service.compile_ahead(["error"])     # background mode: a second process compiles these
+    warmup_service.stop_unless(["render:reference"])  # ... stopped when it holds none of these
     warmup_service.stop()                       # unregister and Blender's exit (atexit)
 
 Background mode (``blender -b``, the bpy module, scripts) starts no warm-up of its own: it
 compiles in its own process (``needed`` says no job is awaited there), except what
-``compile_ahead`` gives a second process on a cold cache (an import's field error, the command
-line's render kernels), which ``wait`` and ``ready`` then join. Plain Python except
+``compile_ahead`` gives a second process on a cold cache (an import's field error and the
+render kernels of the scene's mode, the command line's render kernels), which ``wait`` and
+``ready`` then join. Plain Python except
 ``register_extra``/``unregister_extra`` and the timer (bpy).
 """
 
@@ -75,6 +77,19 @@ def compile_ahead(jobs, threads=0) -> list:
     if cores < 2 or not background() or running() or not jobs:
         return []
     return start(jobs, nice=0, processes=1)  # this process compiles on the other core
+
+
+def stop_unless(jobs) -> bool:
+    """Background mode: stop the second process started here when none of its jobs is one of
+    ``jobs`` (what it compiles was a guess, an import's of the scene's render mode, and would only
+    slow what this process compiles now on the other core). True when it stopped one."""
+    if not background():
+        return False
+    with _LOCK:
+        if not running() or any(j in _state["jobs"] for j in jobs):
+            return False
+        stop()
+    return True
 
 
 def ready(jobs) -> None:

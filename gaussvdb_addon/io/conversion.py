@@ -34,15 +34,31 @@ def import_options(options):
     return options.replace(index_limit=ORIGIN_LIMIT)
 
 
+def ahead_jobs(options) -> list:
+    """The warm-up jobs an import in background mode (a script, ``blender -b``) gives a second
+    process on a new cache, to compile beside its reader and LODs: the field error (when asked;
+    once no LOD kernel is cached: an install, an update), then the render kernels of the scene's
+    mode (a batch job's import is followed by its render, which then waits for what is left)."""
+    from ...kernels import warmup
+    from ..engine import kernel_cache
+
+    jobs = ["error"] if options.compute_error and options.lods and not kernel_cache.compiled("lod") else []
+    try:
+        import bpy
+
+        mode = bpy.context.scene.gaussvdb.mode.lower()
+    except (ImportError, AttributeError):  # no scene (a restricted context)
+        return jobs
+    return jobs + warmup.missing(warmup.jobs_for(modes=(mode,), general=False))
+
+
 def convert_steps(filepath, options=DEFAULTS, skipped=None):
     """kernels.pipeline.convert_steps for an import (import_options), its last step creating
     the objects."""
     from ..engine import kernel_cache, warmup_service
 
     kernel_cache.announce("vdb", "lod")
-    if options.compute_error and options.lods and not kernel_cache.compiled("lod"):
-        # a new cache (an install, an update): the field error compiles beside the reader and LODs
-        warmup_service.compile_ahead(["error"])
+    warmup_service.compile_ahead(ahead_jobs(options))  # background mode only
     out = yield from pipeline.convert_steps(filepath, import_options(options), skipped,
                                             warmup_service.ready)
     yield 1.0, "creating objects"

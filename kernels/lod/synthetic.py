@@ -53,7 +53,8 @@ def full_block_set(shape, edge, lod):
     from . import weights
     from .gaussian_set import GaussianSet
 
-    leaves = np.argwhere(np.ones(np.asarray(shape) // 8, bool)).astype(np.int32) * 8
+    # C order, as build_lod's: numba compiles an F-ordered array's kernels again
+    leaves = np.ascontiguousarray(np.argwhere(np.ones(np.asarray(shape) // 8, bool)), np.int32) * 8
     per = 8 // edge
     blocks = np.argwhere(np.ones((per, per, per), bool)) * edge + (edge - 1) / 2.0
     n = len(leaves) * len(blocks)

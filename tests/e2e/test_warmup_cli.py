@@ -112,7 +112,21 @@ for value in vars(mixture).values():
         calls["hits"] += sum(d.stats.cache_hits.values())
         calls["misses"] += sum(d.stats.cache_misses.values())
 stats = addon_module("gaussvdb_addon.io.importer").object_stats(objs[0])
-print(json.dumps(dict(calls, nrmse=stats[0].get("nrmse"))))
+service = addon_module("gaussvdb_addon.engine.warmup_service")
+jobs, running = list(service._state["jobs"]), service.running()
+# an F12 in another mode than the scene's at the import: that process is stopped, not waited for
+scene = bpy.context.scene
+scene.gaussvdb.mode = "REFERENCE"
+scene.render.engine = "GAUSSVDB"
+scene.render.resolution_x, scene.render.resolution_y = 16, 12
+cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+cam.location = (0.0, -20.0, 0.0)
+cam.rotation_euler = (1.5708, 0.0, 0.0)
+scene.collection.objects.link(cam)
+scene.camera = cam
+bpy.ops.render.render()
+print(json.dumps(dict(calls, nrmse=stats[0].get("nrmse"), jobs=jobs, running=running,
+                      running_after=service.running())))
 """
 
 
@@ -137,15 +151,20 @@ def test_jobs_on_two_processes_leave_what_a_later_process_loads(tmp_path):
 
 def test_an_import_on_an_empty_cache_compiles_the_field_error_in_a_second_process(tmp_path):
     """An import in background mode (a script, `blender -b`) on an empty cache: the field
-    error's kernels compile in a warm-up process started beside the reader and the LOD (its
-    status and marker say so), and the import loads them from there rather than compiling
-    them too (numba's cache hits, no miss, in the error's module)."""
+    error's kernels, then the render kernels of the scene's mode, compile in a warm-up process
+    started beside the reader and the LOD (its status and marker say so); the import loads the
+    error's from there rather than compiling them too (numba's cache hits, no miss, in the
+    error's module); an F12 in another mode stops that process and compiles its own."""
     cache = tmp_path / "kernels"
-    got, status, _warm = _run_cold([sys.executable, "-c", IMPORT % {"root": ROOT, "file": SAMPLE}],
-                                   cache)
-    assert status["jobs"] == ["error"] and status["state"] == "done", status
+    got, status, warm = _run_cold([sys.executable, "-c", IMPORT % {"root": ROOT, "file": SAMPLE}],
+                                  cache)
+    assert got["jobs"] == status["jobs"] == ["error", "render:particles"], (got, status)
+    assert "error" in status.get("seconds", {}), status
+    assert any(p.name == "error.done" for p in warm.rglob("*.done")), list(warm.rglob("*"))
     assert got["nrmse"] is not None and 0.0 < got["nrmse"] < 1.0, got
     assert got["hits"] > 0 and got["misses"] == 0, got
+    if got["running"]:  # still compiling the particles kernels when the F12 began
+        assert not got["running_after"], got
 
 
 # the import's warm-up jobs, then imports of large files in the same process: what numba compiles
@@ -188,4 +207,43 @@ def test_the_import_s_warm_up_covers_large_files(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     got = json.loads(r.stdout.strip().splitlines()[-1])
     assert min(got["leaves"]) >= 512, got["leaves"]
+    assert got["compiled"] == [], got["compiled"]
+
+
+# the particles mode's warm-up, then a frame of a real grid's Gaussians: what numba compiles
+FRAME_AFTER_WARM_UP = """
+import json, sys
+sys.path.insert(0, %(root)r)
+import numpy as np
+from kernels import pipeline, warmup
+from kernels.render import Camera, CPUDevice, RenderObject, RenderScene, TransferFunction
+warmup.run(["render:particles"])
+cg = pipeline.convert_file(%(file)r, ["density"], lods=("medium",), compute_error=False)[0]
+from numba.core import event
+compiled = []
+
+class Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Count())
+lo, hi = cg.leaf_box
+img = CPUDevice(threads=2).render(RenderScene([RenderObject(cg.lods[0].gset, np.eye(4))]),
+                                  Camera.frame_box(list(lo), list(hi), 32, 24),
+                                  TransferFunction.from_colormap("viridis", 0.0, 1.0))
+print(json.dumps({"compiled": compiled, "alpha": float(img["Combined"][..., 3].max())}))
+"""
+
+
+def test_the_render_warm_up_covers_a_real_grid_s_frame(tmp_path):
+    """The particles job draws numpy-made Gaussians (no LOD kernel): a real grid's LOD, drawn
+    after it, runs the kernels it compiled (the same array types, layouts included)."""
+    r = subprocess.run([sys.executable, "-c", FRAME_AFTER_WARM_UP % {"root": ROOT, "file": SAMPLE}],
+                       capture_output=True, text=True, timeout=900, env=_env(tmp_path / "cache"))
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    assert got["alpha"] > 0.1, got  # the smoke was drawn
     assert got["compiled"] == [], got["compiled"]

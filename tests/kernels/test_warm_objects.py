@@ -26,8 +26,9 @@ def test_full_block_sets_equal_build_lod(shape, lod, edge):
         if f.name == "params":  # the LOD's build settings: no render reads them
             continue
         a, b = getattr(made, f.name), getattr(ours, f.name)
-        if isinstance(a, np.ndarray):
+        if isinstance(a, np.ndarray):  # numba's type: dtype, dimensions and layout
             assert a.dtype == b.dtype and np.array_equal(a, b), f.name
+            assert a.flags.c_contiguous == b.flags.c_contiguous, f.name
         else:
             assert a == b, f.name
 
