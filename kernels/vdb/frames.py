@@ -224,21 +224,16 @@ _UNCOMPRESS = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, c
 
 
 @njit(cache=True, nogil=True)
-def _inflate_one(j, fn, buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start, dlen, status):
-    """zlib ``uncompress`` chunk ids[j] into pool[pool_start[i]:+nbytes[i]]. status[i] = 0 when
-    it gave exactly nbytes[i] bytes (Z_OK), else 1 (left to the Python path). zlib never writes
-    past the dlen it is given, and dlen is the slot size."""
-    i = ids[j]
-    dlen[i] = nbytes[i]
-    r = fn(pool.ctypes.data + pool_start[i], dlen.ctypes.data + i * dlen.itemsize,
-           buf.ctypes.data + chunk_off[i], chunk_len[i])
-    status[i] = 0 if (r == 0 and dlen[i] == nbytes[i]) else 1
-
-
-@njit(cache=True, nogil=True)
-def _inflate_rows(lo, hi, *args):
+def _inflate_rows(lo, hi, fn, buf, ids, chunk_off, chunk_len, nbytes, pool, pool_start, dlen, status):
+    """zlib ``uncompress`` chunks ids[lo:hi], each into pool[pool_start[i]:+nbytes[i]]. status[i]
+    = 0 when it gave exactly nbytes[i] bytes (Z_OK), else 1 (left to the Python path). zlib never
+    writes past the dlen it is given, and dlen is the slot size."""
     for j in range(lo, hi):
-        _inflate_one(j, *args)
+        i = ids[j]
+        dlen[i] = nbytes[i]
+        r = fn(pool.ctypes.data + pool_start[i], dlen.ctypes.data + i * dlen.itemsize,
+               buf.ctypes.data + chunk_off[i], chunk_len[i])
+        status[i] = 0 if (r == 0 and dlen[i] == nbytes[i]) else 1
 
 
 def _find_uncompress():

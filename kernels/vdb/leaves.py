@@ -302,11 +302,16 @@ def _full32(buf, p, fsz, cv):
     return np.float32(cv.view(np.float64)[0]) if fsz == 8 else cv.view(np.float32)[0]
 
 
+_TASK = 32  # leaves per task (the chunks parallel_for hands to threads are whole tasks)
+
+
 @njit(cache=True, nogil=True)
-def _decode_task(c, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbytes, ids, masks,
+def _decode_rows(lo, hi, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbytes, ids, masks,
                  codes, off0, off1, seloff, bg, fsz, outu, outf, mag, status):
-    """Task c of the decode: convert and scatter leaves ids[c * _TASK:(c + 1) * _TASK] into
-    ``outu`` (float32 bits, (N, 512 * ncomp)); vec3 magnitudes go to ``mag``. A leaf's values
+    """Tasks lo..hi-1 of the decode: convert and scatter leaves ids[lo * _TASK:hi * _TASK] into
+    ``outu`` (float32 bits, (N, 512 * ncomp)); vec3 magnitudes go to ``mag``. Leaves are
+    independent: any split into tasks on any threads gives the same result. One compiled
+    function (a per-task one called from this loop was one more, ~1 s on a first import). A leaf's values
     come from the file (raw chunk), the pool (pool_start >= 0: inflated before) or its blosc
     frame, decoded here into the task's scratch. A frame the compiled decoder declines sets
     status[i] = 1 and leaves the leaf unwritten.
@@ -327,7 +332,7 @@ def _decode_task(c, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbyt
     cv = np.empty(1, np.uint64)
     zero = np.int64(0)
     one = np.int64(1)
-    for j in range(c * _TASK, min(nids, (c + 1) * _TASK)):
+    for j in range(lo * _TASK, min(nids, hi * _TASK)):
         i = ids[j]
         cnt = nbytes[i] // vsize
         for k in range(nc):
@@ -373,15 +378,6 @@ def _decode_task(c, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbyt
                 y = outf[i, slot, 1]
                 z = outf[i, slot, 2]
                 mag[i, slot] = np.sqrt(x * x + y * y + z * z)
-
-
-_TASK = 32  # leaves per task (one set of scratch buffers each)
-
-
-@njit(cache=True, nogil=True)
-def _decode_rows(lo, hi, *args):
-    for c in range(lo, hi):  # leaves are independent: any thread count gives the same result
-        _decode_task(c, *args)
 
 
 def threads_for(n):
