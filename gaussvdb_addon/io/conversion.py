@@ -40,7 +40,7 @@ def ahead_jobs(options) -> list:
     install, an update) the field error, when asked, which the import then loads; and the render
     kernels of the scene's mode not compiled yet (a batch job's import is followed by its
     render, which then waits for what is left). Giving that process the LODs' kernels too made
-    the import no faster and the render after it 6 s slower (README, Cold start)."""
+    the import at most 1 s faster and the render after it 6 s slower (README, Cold start)."""
     from ...kernels import warmup
     from ..engine import kernel_cache
 
