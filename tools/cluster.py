@@ -297,7 +297,8 @@ def convert_sequence(pattern, frames, grid, lod, cache_dir, options, *, workers=
     def load_kernels(client, threads):  # on every worker at once, before the frames
         t0 = time.perf_counter()
         with contextlib.suppress(Exception):  # failed: each worker loads them in its first frame
-            client.run(cluster_tasks.load_kernels, dataclasses.replace(job, threads=threads), ROOT)
+            client.run(cluster_tasks.load_kernels, dataclasses.replace(job, threads=threads), ROOT,
+                       pat.path(todo[0]))
         res["seconds_load"] = time.perf_counter() - t0
 
     dash = _loop((workers, scheduler, cores), prog, todo, submit, "convert", items, flush,

@@ -154,18 +154,21 @@ def convert_frame(job: ConvertJob, frame: int, path: str, root=None) -> dict:
     return _stamp(item, t0, rss0)
 
 
-def load_kernels(job: ConvertJob, root=None) -> float:
+def load_kernels(job: ConvertJob, root=None, like=None) -> float:
     """A frame's kernels loaded from the cache (compiled on a cold one) in this worker before its
-    first frame: the job's conversion and encoding of the warm-up's small file
-    (kernels/data/warmup.vdb), on every worker at once while none has a frame yet
-    (cluster.convert_sequence), rather than in each worker's first frame. Returns its seconds."""
+    first frame: the job's conversion and encoding of the warm-up's small file stored as the
+    frame ``like`` is (blosc or not: the reader's decoders differ), on every worker at once while
+    none has a frame yet (cluster.convert_sequence), rather than in each worker's first frame.
+    Returns its seconds."""
     use_root(root)
     from kernels import pipeline, warmup
     from kernels.lod import encode_compact
+    from kernels.vdb.info import uses_blosc
 
     t0 = time.perf_counter()
     set_threads(job.threads)
-    cg, _why = pipeline.convert_frame(warmup.FIXTURE, "density", job.lod, job.options)
+    fixture = warmup.FIXTURE if like is None or uses_blosc(like) else warmup.CACHE_FIXTURE
+    cg, _why = pipeline.convert_frame(fixture, "density", job.lod, job.options)
     if cg is not None:
         encode_compact(cg.lods[0].gset)
     return time.perf_counter() - t0

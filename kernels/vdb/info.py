@@ -1,8 +1,36 @@
 """Describe a .vdb file for `gaussvdb info`: one dict per grid, and a text table."""
 
+import os
+
 import numpy as np
 
-from .reader import read_topology
+from .codec import COMPRESS_BLOSC
+from .errors import VDBFormatError
+from .reader import _close, _descriptor, _header, _load, read_topology
+from .stream import Cursor
+
+
+def uses_blosc(path):
+    """Whether a grid of ``path`` is blosc-compressed (the reader compiles its decoders per
+    compression), from the header and each grid's first word: plain Python, nothing compiled.
+    True where it cannot tell (no grid offsets, a malformed file)."""
+    try:
+        buf = _load(path)
+    except VDBFormatError:
+        return True
+    try:
+        cur = Cursor(buf, os.fspath(path))
+        version, _lib, has_offsets, _meta, count = _header(cur)
+        flags = 0 if has_offsets else COMPRESS_BLOSC
+        for _ in range(count if has_offsets else 0):  # each descriptor, then its grid
+            d = _descriptor(cur, version)
+            flags |= int(np.frombuffer(buf, "<u4", 1, d["grid_pos"])[0])
+            cur.pos = d["end_pos"]
+        return bool(flags & COMPRESS_BLOSC)
+    except (VDBFormatError, ValueError, IndexError):
+        return True
+    finally:
+        _close(buf)
 
 
 def describe(path):

@@ -272,24 +272,28 @@ def _scatter(vals, i, nc, compact, masks, val0, val1, buf, sp, out):
 
 
 @njit(cache=True, nogil=True)
-def _values(src, o, es, bs, cnt, nc, kind, lut, vals):
-    """_gather with literal kind, es or bs for scalar grids: each call inlines into its own
-    specialised loop (combined loads when plain, vector loads across byte planes when
-    shuffled); vector grids (rarer) share one generic loop per layout."""
+def _values(src, o, es, cnt, nc, kind, lut, vals):
+    """_gather of plain values (es bytes each from src[o]) with literal kind for scalar grids:
+    each call inlines into its own specialised loop (combined loads); vector grids (rarer)
+    share one generic loop."""
     if nc != 1:
-        if bs == 1:
-            _gather(src, o, es, 1, cnt, nc, kind, lut, vals)
-        else:
-            _gather(src, o, 1, bs, cnt, nc, kind, lut, vals)
-    elif bs == 1:
-        if kind == 0:
-            _gather(src, o, 2, 1, cnt, 1, 0, lut, vals)
-        else:
-            _gather(src, o, 4, 1, cnt, 1, 1, lut, vals)
+        _gather(src, o, es, 1, cnt, nc, kind, lut, vals)
     elif kind == 0:
-        _gather(src, o, 1, bs, cnt, 1, 0, lut, vals)
+        _gather(src, o, 2, 1, cnt, 1, 0, lut, vals)
     else:
-        _gather(src, o, 1, bs, cnt, 1, 1, lut, vals)
+        _gather(src, o, 4, 1, cnt, 1, 1, lut, vals)
+
+
+@njit(cache=True, nogil=True)
+def _planes(src, cnt, nc, kind, lut, vals):
+    """_gather of a blosc frame left byte-shuffled in src (vector loads across its byte planes);
+    a function of its own, so that grids without blosc never compile it."""
+    if nc != 1:
+        _gather(src, 0, 1, cnt, cnt, nc, kind, lut, vals)
+    elif kind == 0:
+        _gather(src, 0, 1, cnt, cnt, 1, 0, lut, vals)
+    else:
+        _gather(src, 0, 1, cnt, cnt, 1, 1, lut, vals)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -307,7 +311,7 @@ _TASK = 32  # leaves per task (the chunks parallel_for hands to threads are whol
 
 @njit(cache=True, nogil=True)
 def _decode_rows(lo, hi, buf, pool, kind, lut, chunk_off, chunk_len, pool_start, nbytes, ids, masks,
-                 codes, off0, off1, seloff, bg, fsz, outu, outf, mag, status):
+                 codes, off0, off1, seloff, bg, fsz, outu, outf, mag, status, frames):
     """Tasks lo..hi-1 of the decode: convert and scatter leaves ids[lo * _TASK:hi * _TASK] into
     ``outu`` (float32 bits, (N, 512 * ncomp)); vec3 magnitudes go to ``mag``. Leaves are
     independent: any split into tasks on any threads gives the same result. One compiled
@@ -319,7 +323,8 @@ def _decode_rows(lo, hi, buf, pool, kind, lut, chunk_off, chunk_len, pool_start,
     Inactive slots get -bg / +bg or the values stored at off0 / off1 (fsz-byte floats) as the
     leaf's codec code says, picked by the selection mask at seloff. kind 0: half values,
     1: float32. Every offset and length was validated by _scan before this runs; scratch holds
-    512 float32 per component, the largest leaf.
+    512 float32 per component, the largest leaf. ``frames`` None (a grid without blosc): numba
+    prunes the frame decoder and the byte-plane reads, and compiles neither.
     """
     nc = outf.shape[2]
     vsize = (2 if kind == 0 else 4) * nc
@@ -331,7 +336,6 @@ def _decode_rows(lo, hi, buf, pool, kind, lut, chunk_off, chunk_len, pool_start,
     v1 = np.empty(nc, np.float32)
     cv = np.empty(1, np.uint64)
     zero = np.int64(0)
-    one = np.int64(1)
     for j in range(lo * _TASK, min(nids, hi * _TASK)):
         i = ids[j]
         cnt = nbytes[i] // vsize
@@ -342,30 +346,32 @@ def _decode_rows(lo, hi, buf, pool, kind, lut, chunk_off, chunk_len, pool_start,
                 v0[k] = _full32(buf, off0[i] + k * fsz, fsz, cv)
             if off1[i] >= 0:
                 v1[k] = _full32(buf, off1[i] + k * fsz, fsz, cv)
-        o = chunk_off[i]  # values at src[o:], laid out as _gather's es / bs say
-        es = vsize
-        bs = one
+        o = chunk_off[i]  # values at src[o:], vsize bytes each
         src = pool  # a writable scratch or pool, unless in_file: then the (read-only) file
         in_file = chunk_len[i] <= 0
+        planes = False
         if not in_file and pool_start[i] >= 0:
             o = pool_start[i]
         elif not in_file:
+            if frames is None:
+                status[i] = 1
+                continue
             r = blosc_frame(buf, o, chunk_len[i], nbytes[i], vsize, a, b)
             if r < 0:
                 status[i] = 1
                 continue
+            if r == 2:  # still byte-shuffled: read across the byte planes
+                _planes(b, cnt, nc, kind, lut, vals)
+                planes = True
             in_file = r == 1  # a stored frame: read in place after its header
             o = o + 16 if r == 1 else zero
-            src = a if r == 0 else b
-            if r == 2:  # still byte-shuffled: read across the byte planes
-                es = one
-                bs = cnt
+            src = a
         # two call sites, one per array type, with run-time arguments: numba compiles _values
         # once for each instead of once per literal combination (each compile costs seconds)
-        if in_file:
-            _values(buf, o, es, bs, cnt, nc, kind, lut, vals)
-        else:
-            _values(src, o, es, bs, cnt, nc, kind, lut, vals)
+        if in_file and not planes:
+            _values(buf, o, vsize, cnt, nc, kind, lut, vals)
+        elif not planes:
+            _values(src, o, vsize, cnt, nc, kind, lut, vals)
         v0u = v0.view(np.uint32)
         v1u = v1.view(np.uint32)
         if nc == 1:
@@ -430,7 +436,7 @@ def decode_leaves(cur, masks, t, flags, et, background, magnitudes=None):
                      chunk_off, chunk_len, pool_start, nbytes, ids, masks, t["codes"], t["off0"],
                      t["off1"], t["seloff"], bg, et.full.itemsize,
                      out.view(np.uint32).reshape(n, 512 * et.ncomp), out, magnitudes, status,
-                     threads=threads_for(len(ids)))
+                     True if flags & COMPRESS_BLOSC else None, threads=threads_for(len(ids)))
 
     for a in range(0, n, BLOCK_LEAVES):
         ids = np.arange(a, min(n, a + BLOCK_LEAVES))

@@ -208,11 +208,12 @@ def _full_bits(buf, p, fsz):
 
 
 @njit(cache=True, nogil=True)
-def _codec(buf, pos, end, nslots, vmask, nc, fsz, half, mask_comp, comp, lut, bg):
+def _codec(buf, pos, end, nslots, vmask, nc, fsz, half, mask_comp, comp, lut, bg, frames):
     """Parse one internal node's values codec at pos (as read_node_parts does).
 
     Returns (ok, pos, data (count, nc) uint64 bits, val0, val1, sel (nslots // 64) uint64 words);
     ok False when the Python walk must take over (zip chunk, declined frame, anything wrong).
+    ``frames`` None (a grid without blosc): numba prunes the frame decoder and compiles none.
     """
     data = np.zeros((0, nc), np.uint64)
     val0 = bg.copy()
@@ -274,7 +275,7 @@ def _codec(buf, pos, end, nslots, vmask, nc, fsz, half, mask_comp, comp, lut, bg
                 return False, pos, data, val0, val1, sel
             pos += nbytes
         else:
-            if comp != 2 or size > end - pos:
+            if frames is None or comp != 2 or size > end - pos:
                 return False, pos, data, val0, val1, sel  # zip: left to Python's zlib
             a = np.empty(max(nbytes, 1), np.uint8)
             t = np.empty(max(nbytes, 1), np.uint8)
@@ -307,12 +308,12 @@ def _codec(buf, pos, end, nslots, vmask, nc, fsz, half, mask_comp, comp, lut, bg
 
 @njit(cache=True, nogil=True)
 def _walk(buf, pos, end, nchild, nc, fsz, half, mask_comp, comp, lut, bg, sxyz, sbits, sact, kids,
-          grand, leaf_cap):
+          grand, leaf_cap, frames):
     """Every root child's subtree (level-2 node, its level-1 nodes, their leaf masks) in file
     order, tiles in the order the Python walk appends them. Values are uint64 bit patterns of the
     full type. sxyz/sbits/sact (32768 rows), kids (32768, 3), grand (4096, 3): reused scratch.
     Returns (ok, pos, leaf_xyz, leaf_masks, tiles); tiles rows: x, y, z, size, active, value
-    bits per component. ok False: hand over to the Python walk from the start.
+    bits per component. ok False: hand over to the Python walk from the start. frames: as _codec.
     (Explicit loops rather than slice assignment keep numba's compile time down.)"""
     # every leaf mask takes 64 bytes here, so this bound rarely needs growing; pages the walk
     # never touches cost nothing (capped at leaf_cap: some systems commit all they allocate)
@@ -347,7 +348,7 @@ def _walk(buf, pos, end, nchild, nc, fsz, half, mask_comp, comp, lut, bg, sxyz, 
                 vmask = buf[pos + nslots // 8:pos + nslots // 4].view(np.uint64)
                 pos += nslots // 4
                 ok, pos, data, val0, val1, sel = _codec(buf, pos, end, nslots, vmask, nc, fsz, half,
-                                                        mask_comp, comp, lut, bg)
+                                                        mask_comp, comp, lut, bg, frames)
                 if not ok:
                     return fail
                 out = kids if level == 2 else grand
@@ -404,7 +405,7 @@ def _compiled_walk(cur, topo, flags, et, bg, nchild):
     ok, pos, lxyz, lmask, tiles = _walk(
         cur.arr, cur.pos, cur.end, nchild, et.ncomp, et.full.itemsize, et.half,
         bool(flags & COMPRESS_ACTIVE_MASK), comp, _HALF_BITS, bgb, sxyz, sbits, sact, kids, grand,
-        _LEAF_CAP)
+        _LEAF_CAP, True if comp == 2 else None)
     if not ok:
         return False
     cur.pos = int(pos)

@@ -189,7 +189,7 @@ sys.path.insert(0, %(root)r)
 from kernels import pipeline, warmup
 warmup.run(["reader", "lod:medium", "error"])
 %(count)sleaves = [len(g.leaf_origins) for f in %(files)r for g in pipeline.read_grids(f)[0]]
-for f in %(files)r:
+for f in %(files)r + [%(sample)r]:
     pipeline.convert_file(f, lods=("medium",), compute_error=True)
 print(json.dumps({"compiled": compiled, "leaves": leaves}))
 """
@@ -197,7 +197,8 @@ print(json.dumps({"compiled": compiled, "leaves": leaves}))
 
 def test_the_import_s_warm_up_covers_large_files(tmp_path):
     """The warm-up's files are small (a few dozen leaves); a real grid's import (thousands of
-    leaves: the reader's threads, the field error's lattice classes) runs no kernel they left
+    leaves: the reader's threads, the field error's lattice classes), blosc-compressed (the
+    written fixtures) or not (the bundled Mantaflow sample), runs no kernel they left
     uncompiled."""
     import numpy as np
 
@@ -207,6 +208,7 @@ def test_the_import_s_warm_up_covers_large_files(tmp_path):
     fog = write_grid(tmp_path / "fog.vdb", np.exp(-3.0 * (x * x + y * y + z * z)), tolerance=1e-3)
     files = [str(fog)] + [f for f in (os.path.join(DATA_DIR, "teapot_ls_256.vdb"),) if os.path.exists(f)]
     r = subprocess.run([sys.executable, "-c", AFTER_WARM_UP % {"root": ROOT, "files": files,
+                                                                   "sample": SAMPLE,
                                                                    "count": COUNT_COMPILES}],
                        capture_output=True, text=True, timeout=900, env=_env(tmp_path / "cache"))
     assert r.returncode == 0, r.stderr[-3000:]

@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
+from kernels import warmup
 from kernels.vdb import VDBFormatError, estimate_bytes, read_topology, read_vdb
 from tests.vdb_fixtures import build_oracle_file, openvdb, transcode, write_grid
 
@@ -224,6 +225,17 @@ def test_shared_data_files(path):
     assert {g.name: g.active_voxels for g in f.grids} == counts
     if os.path.getsize(path) < 1_000_000:
         compare_with_binding(path, f)
+
+
+@pytest.mark.parametrize("path", [warmup.FIXTURE, warmup.CACHE_FIXTURE], ids=os.path.basename)
+def test_warm_up_fixtures(path):
+    """The warm-up's two files (blosc; a Mantaflow frame with fog grids raw and the velocity
+    zip), read as the binding reads them."""
+    f = read_vdb(path)
+    compressions = {g.compression for g in f.grids}
+    blosc = path == warmup.FIXTURE
+    assert compressions == ({"blosc + active mask"} if blosc else {"active mask", "zip + active mask"})
+    compare_with_binding(path, f)
 
 
 @pytest.mark.parametrize("content", [None, b"", b"hello world, not a vdb file" * 3])
