@@ -1,7 +1,7 @@
 """Cold start: the seconds to a first import and a first frame with no compiled kernels, and again
 with the kernels cached.
 
-    ./gaussvdb bench cold_start [--only kernels,blender,cli,demo] [--modes reference,particles,...]
+    ./gaussvdb bench cold_start [--only kernels,blender,cli,demo,compat] [--modes reference,particles,...]
                                 [--lods low,medium,high,adaptive] [--cli-modes reference,particles]
                                 [--size 256x256] [--timeout 900] [--json FILE]
     ./gaussvdb bench cold_start --only cpu [--modes particles,field,reference] [--size 512x512]
@@ -17,7 +17,10 @@ second fresh process on the same folder (warm). On the bundled sample
   F12 (render.render(write_still=True), GAUSSVDB engine) per mode after a Medium import; the
   add-on's kernels load under its own module name, so they have their own cache entries;
 - cli: the whole process of `./gaussvdb render SAMPLE --mode M --out X.png` (--cli-modes), and
-  `./gaussvdb demo` up to its first image (demo).
+  `./gaussvdb demo` up to its first image (demo);
+- compat (only when asked: --only compat): the blender cases in the oldest supported Blender (the
+  compat environment's bpy module, `GAUSSVDB_COMPAT_VENV` or .venv-compat), from this platform's
+  zip installed into a fresh user folder, as a user has it (the zip's own numba wheels).
 
 Per case: the seconds of the step, numba's compile seconds in it (the "numba:compile" events,
 nested compiles counted once) and the functions compiled (every compile event, nested ones too),
@@ -74,21 +77,32 @@ TARGETS = {
 
 
 def target(way, what, which):
+    way = "blender" if way == "compat" else way  # the same targets in every Blender
     return TARGETS.get((way, what, which)) or TARGETS.get((way, what, None)) or (None, None)
+
+
+def compat_zip(python, folder):
+    """This platform's zip for ``python``'s Blender (its wheels' Python tag), built into folder."""
+    import cmd_build
+    import cmd_compat
+
+    tag = subprocess.run([python, "-c", "import sys; print(f'cp{sys.version_info[0]}{sys.version_info[1]}')"],
+                         capture_output=True, text=True, check=True).stdout.strip()
+    return cmd_build.build([cmd_compat.this_platform()], [tag], folder)[0]
 
 
 # -- the parent: one subprocess per measurement -------------------------------------------------
 
-def run_child(kind, args, cache, timeout, env=None, watch=None):
-    """Run one child on ``cache``; returns its figures, with ``process`` (whole process seconds)
-    and, with ``watch`` (a folder), ``first_image``: seconds until a PNG other than warmup.png
-    appears there."""
+def run_child(kind, args, cache, timeout, env=None, watch=None, python=None):
+    """Run one child on ``cache`` (in ``python``, default this one); returns its figures, with
+    ``process`` (whole process seconds) and, with ``watch`` (a folder), ``first_image``: seconds
+    until a PNG other than warmup.png appears there."""
     fd, result = tempfile.mkstemp(suffix=".json", prefix="gaussvdb-cold-")
     os.close(fd)
     os.unlink(result)
     e = dict(os.environ, GAUSSVDB_CACHE_DIR=cache, **(env or {}))
     e.pop("NUMBA_CACHE_DIR", None)
-    cmd = [sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "cold_start_child.py"),
+    cmd = [python or sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "cold_start_child.py"),
            kind, *args, "--result", result]
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN) if resource else None
     t0 = time.perf_counter()
@@ -145,6 +159,11 @@ def cases(a, tmp):
         demo_out = os.path.join(tmp, "demo")
         out.append(("demo", "first image", None, "cli", ["demo", "--out", demo_out, "--json"],
                     "first_image", demo_out))
+    if "compat" in a.only:
+        z = compat_zip(a.compat_python, tmp)
+        out += [("compat", "import", lod, "compat-import", [lod, z], "import", None) for lod in a.lods]
+        out += [("compat", "f12", m, "compat-f12", [m, size, os.path.join(tmp, f"compat_{m}.png"), z],
+                 "f12", None) for m in a.modes]
     return out
 
 
@@ -179,7 +198,8 @@ def cold_warm(a):
             for state in ("cold", "warm"):
                 if watch:
                     shutil.rmtree(watch, ignore_errors=True)
-                fig = run_child(kind, args, cache, a.timeout, watch=watch)
+                fig = run_child(kind, args, cache, a.timeout, watch=watch,
+                                python=a.compat_python if way == "compat" else None)
                 row[state] = fig
                 sec, comp, fns = headline(fig, step)
                 row[f"{state}_seconds"], row[f"{state}_compile"], row[f"{state}_functions"] = sec, comp, fns
@@ -334,9 +354,13 @@ def main(argv=None):
 
     ap = cli_errors.ArgumentParser(prog="gaussvdb bench cold_start", description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", default=list(WAYS), type=cli_errors.names(WAYS + ("cpu", "stamps")),
-                    help="ways to measure: kernels, blender, cli, demo (default all); cpu: "
-                         "the generic-CPU comparison instead; stamps: the cache stamps")
+    ap.add_argument("--only", default=list(WAYS), type=cli_errors.names(WAYS + ("compat", "cpu", "stamps")),
+                    help="ways to measure: kernels, blender, cli, demo (default all), compat (the "
+                         "installed zip in the oldest supported Blender); cpu: the generic-CPU "
+                         "comparison instead; stamps: the cache stamps")
+    venv = os.environ.get("GAUSSVDB_COMPAT_VENV", os.path.join(ROOT, ".venv-compat"))
+    ap.add_argument("--compat-python", default=os.path.join(venv, "bin", "python"),
+                    help="--only compat: the Python with that Blender's bpy module")
     ap.add_argument("--modes", default=None, type=cli_errors.names(MODES),
                     help="render modes of the frames (default all; --only cpu: particles,field,reference)")
     ap.add_argument("--lods", default=list(ALL_LODS), type=cli_errors.names(ALL_LODS))
@@ -348,6 +372,9 @@ def main(argv=None):
     ap.add_argument("--timeout", type=cli_errors.positive_int, default=900, help="seconds per process")
     ap.add_argument("--json", default=None, help="write every figure to this file")
     a = ap.parse_args(argv)
+    if "compat" in a.only and not os.path.exists(a.compat_python):
+        raise cli_errors.InputError(f"{a.compat_python}: no such Python (./gaussvdb compat sets up "
+                                    "the compat environment)")
     if "stamps" in a.only:
         out, text = stamps(a)
         print()

@@ -4,7 +4,8 @@ cache folder the parent chose (GAUSSVDB_CACHE_DIR). Run as
     python benchmarks/cold_start_child.py KIND ARGS... --result FILE.json
 
 KIND: kernels-import LOD | kernels-frame MODE WxH | blender-import LOD | blender-f12 MODE WxH PNG |
-cli ARGV... | speed MODES WxH REPEAT. The figures (steps, compile seconds, functions) go to FILE.
+compat-import LOD ZIP | compat-f12 MODE WxH PNG ZIP | cli ARGV... | speed MODES WxH REPEAT. The
+figures (steps, compile seconds, functions) go to FILE.
 """
 from __future__ import annotations
 
@@ -114,15 +115,31 @@ def _operator_import(bpy, lod):
     return [o for o in bpy.context.scene.objects if o.type == "POINTCLOUD"]
 
 
-def child_blender_import(ph, lod):
-    bpy = _blender(ph)
+def _installed(zip_path):
+    """Blender with the zip installed into a user folder beside the cache (a fresh one on a
+    fresh cache; installed again, its kernels kept, on the warm run), as run_compat does; then
+    the step counter, whose numba comes with the zip."""
+    sys.path.insert(0, os.path.join(ROOT, "tests", "compat"))
+    import run_compat
+
+    user = os.path.join(os.environ["GAUSSVDB_CACHE_DIR"], "user")
+    run_compat.user_folder(user)
+    import bpy
+
+    run_compat.install(zip_path, user)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return bpy, Phases()
+
+
+def child_blender_import(ph, lod, bpy=None):
+    bpy = bpy or _blender(ph)
     ph.run("import", lambda: _operator_import(bpy, lod))
 
 
-def child_blender_f12(ph, mode, size, out):
+def child_blender_f12(ph, mode, size, out, bpy=None):
     import cmd_render
 
-    bpy = _blender(ph)
+    bpy = bpy or _blender(ph)
     objs = ph.run("import", lambda: _operator_import(bpy, "medium"))
     opts = cmd_render.options(width=size[0], height=size[1], mode=mode, lod="medium")
     scene = cmd_render.build_scene(bpy, objs, opts)
@@ -182,16 +199,21 @@ def child_main(argv):
         sys.path.insert(0, os.environ["GAUSSVDB_BENCH_SOURCES"])
     if os.environ.get("GAUSSVDB_BENCH_MTIME_STAMP"):
         mtime_stamps()
-    ph = Phases()
     extra = {}
+    bpy = None
+    if kind.startswith("compat-"):  # the installed zip (its numba is there once installed)
+        bpy, ph = _installed(rest[-1])
+        kind = "blender-" + kind[len("compat-"):]
+    else:
+        ph = Phases()
     if kind == "kernels-import":
         child_kernels_import(ph, rest[0])
     elif kind == "kernels-frame":
         child_kernels_frame(ph, rest[0], cli_errors.size(rest[1]))
     elif kind == "blender-import":
-        child_blender_import(ph, rest[0])
+        child_blender_import(ph, rest[0], bpy)
     elif kind == "blender-f12":
-        child_blender_f12(ph, rest[0], cli_errors.size(rest[1]), rest[2])
+        child_blender_f12(ph, rest[0], cli_errors.size(rest[1]), rest[2], bpy)
     elif kind == "cli":
         child_cli(ph, rest)
     elif kind == "speed":
