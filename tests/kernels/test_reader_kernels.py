@@ -1,8 +1,9 @@
 """The reader compiles the decoders of the file's compression only: a file without blosc (a
 Mantaflow cache: fog grids raw, the velocity zip) compiles no blosc frame decoder and no
-byte-plane gather, a blosc file compiles them, and both read the same values either way. Each
-case runs in a fresh process on an empty kernel cache (a kernel loaded from the cache brings its
-callees' code without their dispatchers, so only a compile lists them)."""
+byte-plane gather, and a blosc file compiles them (that both kinds read as the openvdb binding
+does: test_vdb_reader.py, the warm-up fixtures and the transcoded variants). Each case runs in a
+fresh process on an empty kernel cache (a kernel loaded from the cache brings its callees' code
+without their dispatchers, so only a compile lists them)."""
 import json
 import os
 import subprocess
