@@ -10,10 +10,18 @@ command a user runs, in a process of its own, into an empty output folder: `--wo
 numba thread each), `--workers 1` (one thread), and the serial run with 2 threads; the rounds
 interleave them (the machine's load drifts). Per configuration the median wall seconds (cluster
 start-up, each worker's Blender or kernels' loading included), the median span from the first
-frame's start to the last frame's end (the frames alone), each worker's peak resident memory
+frame's start to the last frame's end (the frames alone; the serial run has no such figure:
+its seconds in-process, which also hold its kernels' loading or its import, so only the whole
+commands compare it with a cluster's), each worker's peak resident memory
 with what its first frame and the later ones added to it, and the memory it holds between
 frames (resident after its second frame and after its last: equal when it does not grow with
-the frames drawn).
+the frames drawn), and the seconds of each worker's first frame against its later ones.
+
+Before the rounds, the machine's cost of touching memory for the first time: a fresh process
+faults in 256 MB just after another freed as much, and again after the machine has been idle a
+few seconds. On a virtual machine whose host reclaims the memory its guest frees (a balloon's
+free page reporting), the second is several times the first; it is what each worker pays once
+in its first frame, as its heap grows.
 """
 from __future__ import annotations
 
@@ -79,6 +87,40 @@ def run(argv):
     return wall, res
 
 
+TOUCH = """
+import numpy as np, resource, time
+r, t = resource.getrusage(resource.RUSAGE_SELF).ru_stime, time.perf_counter()
+np.ones(256 << 20, np.uint8)
+print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_stime - r)
+"""
+
+
+def first_touch(idle=4.0):
+    """(seconds, system seconds) to fault in 256 MB in a fresh process: just after another
+    process freed as much ("warm") and after ``idle`` seconds of rest ("cold")."""
+    def once():
+        out = subprocess.run([sys.executable, "-c", TOUCH], capture_output=True, text=True,
+                             check=True, timeout=120).stdout.split()
+        return float(out[0]), float(out[1])
+
+    once()
+    warm = once()
+    time.sleep(idle)
+    return {"warm": warm, "cold": once(), "idle_s": idle}
+
+
+def frame_seconds(res):
+    """(median seconds of each worker's first frame (the serial run's: its first), median of
+    the later frames)."""
+    first, later, seen = [], [], set()
+    for f in sorted(res["frames"], key=lambda i: i.get("started", 0)):
+        if "seconds" in f:
+            (later if f.get("worker") in seen else first).append(f["seconds"])
+            seen.add(f.get("worker"))
+    return (statistics.median(first) if first else 0.0,
+            statistics.median(later) if later else 0.0)
+
+
 def memory(res):
     """Per worker: (peak resident bytes, added by its first frame, most added by a later one,
     resident after its second frame (its first when it drew one), resident after its last)."""
@@ -99,6 +141,7 @@ def memory(res):
 def main(argv=None):
     a = parse(argv if argv is not None else sys.argv[1:])
     rows = {}
+    touch = first_touch()
     with tempfile.TemporaryDirectory(prefix="gaussvdb-bench-cluster-") as tmp:
         pattern = make_sequence(os.path.join(tmp, "seq"), a.frames, a.upsample)
         if hasattr(os, "sync"):  # the frames just written reach the disk before any timing
@@ -113,9 +156,13 @@ def main(argv=None):
                         ["--size", a.size, "--out", os.path.join(out, "f_####.png")]) + extra)
                     wall, res = run(argv)
                     span = res.get("seconds_frames", res.get("seconds_total"))
-                    row = rows.setdefault((kind, name), {"wall": [], "frames": [], "memory": {}})
+                    row = rows.setdefault((kind, name), {"wall": [], "frames": [], "memory": {},
+                                                         "first": [], "later": []})
                     row["wall"].append(wall)
                     row["frames"].append(span)
+                    first, later = frame_seconds(res)
+                    row["first"].append(first)
+                    row["later"].append(later)
                     row["memory"] = memory(res) or row["memory"]
                     shutil.rmtree(out, ignore_errors=True)
     load = [f"{x:.1f}" for x in os.getloadavg()]
@@ -124,6 +171,8 @@ def main(argv=None):
         mem = row["memory"]
         table.append({"kind": kind, "config": name, "wall_s": statistics.median(row["wall"]),
                       "wall_all": row["wall"], "frames_s": statistics.median(row["frames"]),
+                      "first_frame_s": statistics.median(row["first"]),
+                      "later_frame_s": statistics.median(row["later"]),
                       "peak_rss_mb": [round(m[0] / 2**20) for m in mem.values()],
                       "first_frame_added_mb": [round(m[1] / 2**20, 1) for m in mem.values()],
                       "later_frame_added_mb": [round(m[2] / 2**20, 1) for m in mem.values()],
@@ -135,22 +184,29 @@ def main(argv=None):
         for measure in ("wall_s", "frames_s"):
             speedups[f"{kind} {measure}: workers 2 vs workers 1"] = (
                 by["workers 1"][measure] / by["workers 2"][measure])
-            speedups[f"{kind} {measure}: workers 2 vs serial (2 threads)"] = (
-                by["serial"][measure] / by["workers 2"][measure])
+        # the serial run's in-process seconds also hold its kernels' loading (or its import),
+        # which a cluster does before its frames' span: only the whole commands compare alike
+        speedups[f"{kind} wall_s: workers 2 vs serial (2 threads)"] = (
+            by["serial"]["wall_s"] / by["workers 2"]["wall_s"])
     res = {"frames": a.frames, "lod": a.lod, "size": a.size, "upsample": a.upsample,
            "rounds": a.rounds, "cores": os.cpu_count(), "loadavg_end": load, "rows": table,
-           "speedups": speedups}
+           "speedups": speedups, "first_touch_256mb": touch}
     if a.json:
         print(json.dumps(res))
         return 0
     print(f"{a.frames} frames ({'upsampled x%d, ' % a.upsample if a.upsample > 1 else ''}"
           f"{a.lod}, render {a.size}), {a.rounds} interleaved rounds, {os.cpu_count()} cores, "
           f"load {' '.join(load)} at the end")
-    print(f"{'':8} {'config':<10} {'wall s':>7} {'frames s':>9}  peak MB / worker   "
+    print("first touch of 256 MB in a fresh process: {:.3f} s ({:.3f} s system) just after "
+          "another freed as much, {:.3f} s ({:.3f} s system) after {:.0f} s idle".format(
+              *touch["warm"], *touch["cold"], touch["idle_s"]))
+    print(f"{'':8} {'config':<10} {'wall s':>7} {'frames s':>9} {'1st fr s':>8} {'later s':>7}  "
+          "peak MB / worker   "
           "first frame +MB   later frame +MB    held MB after 2nd, last frame")
     for t in table:
         held = ", ".join(f"{a}->{b}" for a, b in t["held_mb"])
-        print(f"{t['kind']:<8} {t['config']:<10} {t['wall_s']:7.2f} {t['frames_s']:9.2f}  "
+        print(f"{t['kind']:<8} {t['config']:<10} {t['wall_s']:7.2f} {t['frames_s']:9.2f} "
+              f"{t['first_frame_s']:8.2f} {t['later_frame_s']:7.2f}  "
               f"{str(t['peak_rss_mb']):<18} {str(t['first_frame_added_mb']):<16} "
               f"{str(t['later_frame_added_mb']):<18} {held}")
     for k, v in sorted(speedups.items()):
