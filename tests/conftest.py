@@ -17,6 +17,22 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA_DIR = os.path.join(os.path.dirname(ROOT), "shared", "data")
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
 ADDON_MODULE = "bl_ext.user_default.gaussvdb"
+
+# a child process's script: from here on, the functions numba compiles land in `compiled` (their
+# qualified names; loading one from the cache is no compile)
+COUNT_COMPILES = """
+from numba.core import event
+compiled = []
+
+class Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Count())
+"""
 # The suite is split by layer (kernels/, blender/, e2e/); a test may use another layer's helpers
 # (test_engine_helpers, ...) and the shared fixtures here, whichever folder pytest collects first.
 sys.path[:0] = [os.path.join(ROOT, "tests", d) for d in ("kernels", "blender", "e2e")] + [

@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-from conftest import DATA_DIR, ROOT
+from conftest import COUNT_COMPILES, DATA_DIR, ROOT
 
 CLI = [sys.executable, os.path.join(ROOT, "tools", "cli.py"), "warmup"]
 SAMPLE = os.path.join(ROOT, "samples", "mantaflow_smoke_r128_f040.vdb")
@@ -166,21 +166,6 @@ def test_an_import_on_an_empty_cache_compiles_the_field_error_in_a_second_proces
     if got["running"]:  # still compiling the particles kernels when the F12 began
         assert not got["running_after"], got
 
-
-# from here on, the functions numba compiles (loading one from the cache is no compile)
-COUNT_COMPILES = """
-from numba.core import event
-compiled = []
-
-class Count(event.Listener):
-    def on_start(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-
-    def on_end(self, ev):
-        pass
-
-event.register("numba:compile", Count())
-"""
 
 # the import's warm-up jobs, then imports of large files in the same process: what numba compiles
 AFTER_WARM_UP = """
